@@ -1,0 +1,1 @@
+"""Verification harness: case file -> mesh -> FreeFEM run -> fields -> norms -> study -> report."""

@@ -1,0 +1,117 @@
+"""Command line: `python -m harness convergence CASE` and `python -m harness solve CASE --n N`."""
+
+from __future__ import annotations
+
+import argparse
+import os
+import sys
+from pathlib import Path
+from typing import Any, NoReturn, Sequence
+
+from harness.errors import HarnessError
+from harness.layout import Layout
+from harness.mesh import build_mesh
+from harness.report import format_table, write_report
+from harness.run import check_solver_files, run_level
+from harness.scene import load_scene
+from harness.study import run_study
+
+EXIT_ERROR = 2  # an expected failure: bad input, failed run
+EXIT_OUT_OF_BAND = 1  # the study ran, but its slope leaves the case's band
+
+
+class Parser(argparse.ArgumentParser):
+    def error(self, message: str) -> NoReturn:
+        # One line, like every other expected failure, instead of argparse's usage dump.
+        self.exit(EXIT_ERROR, f"error: {message} (see --help)\n")
+
+
+def positive_int(text: str) -> int:
+    try:
+        value = int(text)
+    except ValueError:
+        raise argparse.ArgumentTypeError(f"{text!r} is not an integer") from None
+    if value <= 0:
+        raise argparse.ArgumentTypeError(f"{text!r} must be positive")
+    return value
+
+
+def level_list(text: str) -> tuple[int, ...]:
+    return tuple(positive_int(part) for part in text.split(","))
+
+
+def parser() -> Parser:
+    top = Parser(prog="python -m harness", description=__doc__)
+    commands = top.add_subparsers(dest="command", required=True, parser_class=Parser)
+    study = commands.add_parser("convergence", help="run every level and measure E^h and its slope")
+    study.add_argument("--levels", type=level_list, help="comma-separated n = 1/h (default: the case's)")
+    study.add_argument("--jobs", type=positive_int, default=os.cpu_count() or 1, help="parallel runs")
+    solve = commands.add_parser("solve", help="solve one level and summarise run.json")
+    solve.add_argument("--n", type=positive_int, required=True, help="level n = 1/h")
+    for sub in (study, solve):
+        sub.add_argument("case", type=Path, help="case file, e.g. cases/paper.toml")
+        sub.add_argument("--set", dest="overrides", action="append", default=[], metavar="KEY=VALUE",
+                         help="override a case-file value, e.g. contact.S=0 (repeatable)")
+        sub.add_argument("--force", action="store_true", help="rerun even if inputs are unchanged")
+        sub.add_argument("--results", type=Path, default=Layout().results, help="results root")
+        sub.add_argument("--freefem", type=Path, default=Layout().freefem, help="solver scripts")
+    return top
+
+
+def main(argv: Sequence[str] | None = None) -> int:
+    args = parser().parse_args(argv)
+    layout = Layout(results=args.results, freefem=args.freefem)
+    try:
+        scene = load_scene(args.case, args.overrides)
+        if args.command == "solve":
+            return solve(scene, args.n, layout, args.force)
+        return convergence(scene, args.levels or scene.levels, layout, args.jobs, args.force)
+    except HarnessError as exc:
+        print(f"error: {exc}", file=sys.stderr)
+        return EXIT_ERROR
+    except KeyboardInterrupt:
+        print("error: interrupted", file=sys.stderr)
+        return 130
+
+
+def solve(scene, n: int, layout: Layout, force: bool) -> int:
+    check_solver_files(scene, layout)
+    mesh = build_mesh(scene.geometry, n, layout.meshes_dir(scene.name))
+    result = run_level(scene, mesh.path, n, layout, force)
+    print(describe_run(scene.name, result.record, result.directory, result.reused))
+    return 0
+
+
+def convergence(scene, levels: tuple[int, ...], layout: Layout, jobs: int, force: bool) -> int:
+    study = run_study(scene, levels, layout, jobs, force)
+    paths = write_report(study, layout)
+    print(format_table(study))
+    for name, fits in study.slopes.items():
+        print(f"slope {name:>5}: {fits['all']:.3f} (all levels), {fits['window']:.3f} (window)")
+    print(f"sweep wall time {study.wall_s:.1f} s; wrote {', '.join(str(p) for p in paths.values())}")
+    low, high = scene.slope_band
+    if not study.passed:
+        print(f"error: total slope {study.total_slope:.3f} is outside the band [{low}, {high}] "
+              f"of {scene.source}", file=sys.stderr)
+        return EXIT_OUT_OF_BAND
+    print(f"total slope {study.total_slope:.3f} is inside the band [{low}, {high}]: pass")
+    return 0
+
+
+def describe_run(case: str, record: dict[str, Any], directory: Path, reused: bool) -> str:
+    get = record.get
+    state = "converged" if get("converged") else f"NOT converged ({get('reason')})"
+    return "\n".join([
+        f"{case} n={get('n')}: {state} in {get('newton_iterations')} Newton iterations"
+        f" (initial guess {get('initial_guess')}){' [reused]' if reused else ''}",
+        f"  dofs {get('dofs')}, wall {fmt(get('wall_s'))} s"
+        f" (assembly {fmt(get('assembly_s'))} s, solves {fmt(get('solve_s'))} s)",
+        f"  max theta {fmt(get('max_theta'))}, phi in [{fmt(get('min_phi'))}, {fmt(get('max_phi'))}],"
+        f" max |u| {fmt(get('max_abs_u'))}",
+        f"  contact force {fmt(get('contact_force'))}, active length {fmt(get('active_length'))}",
+        f"  results in {directory}",
+    ])
+
+
+def fmt(value: Any) -> str:
+    return f"{value:.4g}" if isinstance(value, (int, float)) and not isinstance(value, bool) else str(value)

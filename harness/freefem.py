@@ -1,0 +1,126 @@
+"""Invoke FreeFem++ in batch: the command line, the environment, the timeout, the exit codes."""
+
+from __future__ import annotations
+
+import functools
+import math
+import os
+import re
+import signal
+import subprocess
+import tempfile
+import time
+from dataclasses import dataclass
+from pathlib import Path
+from typing import Any
+
+from harness.errors import RunError
+
+BINARY = "FreeFem++"
+PLUGIN_PATH = "/usr/lib/freefem++"  # Debian's binary looks elsewhere for its plugins
+INFINITY = "1e300"  # FreeFEM's atof has no "inf"; 1e300 acts as unbounded for every knob
+
+EXIT_REASONS = {
+    1: "FreeFEM compile error",
+    2: "FreeFEM load error (a plugin is missing: is libfreefem++ installed?)",
+    3: "FreeFEM execution error",
+    4: "FreeFEM out of memory",
+    5: "FreeFEM mesh error",
+    6: "FreeFEM assertion failed",
+    7: "FreeFEM internal error",
+    8: "FreeFEM execution error",  # ErrorExec carries the UNKNOWN code in FreeFEM 4.9
+    10: "Newton diverged (growing residual)",
+    11: "NaN/Inf in Newton",
+    12: "Newton hit its maximum number of iterations",
+}
+
+# The first line of FreeFEM's own report of what went wrong (it writes to stdout).
+ERROR_LINE = re.compile(r"error|assertion fail", re.IGNORECASE)
+
+
+@dataclass(frozen=True)
+class Outcome:
+    returncode: int | None  # None: killed on timeout
+    wall_s: float
+
+
+def environment() -> dict[str, str]:
+    env = dict(os.environ, FF_LOADPATH=PLUGIN_PATH)
+    # One thread per run: the study runs levels in parallel, one per core.
+    env.update(OMP_NUM_THREADS="1", OPENBLAS_NUM_THREADS="1")
+    return env
+
+
+def command(script: Path, options: list[str]) -> list[str]:
+    return [BINARY, "-nw", "-v", "0", "-ne", script.name, *options]
+
+
+def format_value(value: Any) -> str:
+    if isinstance(value, bool):
+        return "1" if value else "0"
+    if isinstance(value, float):
+        if math.isinf(value):
+            return INFINITY if value > 0 else "-" + INFINITY
+        return repr(value)  # repr round-trips a double exactly
+    return str(value)
+
+
+def scene_options(parameters: dict[str, dict[str, Any]], initial_guess: str) -> list[str]:
+    options = []
+    for section, values in parameters.items():
+        for key, value in values.items():
+            options += [f"-{section}.{key}", format_value(value)]
+    return options + ["-scene.initial_guess", initial_guess]
+
+
+def invoke(argv: list[str], cwd: Path, timeout_s: float) -> Outcome:
+    """Run in `cwd` with stdout.txt / stderr.txt there; on timeout kill the whole process group."""
+    start = time.perf_counter()
+    with open(cwd / "stdout.txt", "wb") as out, open(cwd / "stderr.txt", "wb") as err:
+        try:
+            proc = subprocess.Popen(
+                argv, cwd=cwd, env=environment(), stdout=out, stderr=err,
+                stdin=subprocess.DEVNULL, start_new_session=True,
+            )
+        except FileNotFoundError:
+            raise RunError(f"{BINARY} not found on PATH (`make test` or `make convergence` installs it)") from None
+        try:
+            code: int | None = proc.wait(timeout=timeout_s)
+        except subprocess.TimeoutExpired:
+            code = None
+        finally:
+            if proc.poll() is None:  # timeout, or the caller was interrupted
+                os.killpg(proc.pid, signal.SIGKILL)
+                proc.wait()
+    return Outcome(code, time.perf_counter() - start)
+
+
+def error_detail(log: str) -> str:
+    line = next((line.strip() for line in log.splitlines() if ERROR_LINE.search(line)), "")
+    return line[:200]
+
+
+def failure_reason(outcome: Outcome, timeout_s: float, detail: str) -> str:
+    code = outcome.returncode
+    if code is None:
+        return f"timed out after {timeout_s:g} s (process group killed)"
+    if code < 0:
+        try:
+            return f"killed by signal {signal.Signals(-code).name}"
+        except ValueError:
+            return f"killed by signal {-code}"
+    reason = EXIT_REASONS.get(code, f"FreeFEM exited with code {code}")
+    return f"{reason}: {detail[:200]}" if detail else reason
+
+
+@functools.cache
+def freefem_version() -> str:
+    """FreeFEM's own `version` (asked once per process; it is part of every cache key)."""
+    with tempfile.TemporaryDirectory(prefix="ff-version-") as tmp:
+        script = Path(tmp) / "version.edp"
+        script.write_text("cout << version << endl;\n")
+        outcome = invoke(command(script, []), Path(tmp), timeout_s=60)
+        text = (Path(tmp) / "stdout.txt").read_text().strip()
+    if outcome.returncode != 0 or not text:
+        raise RunError(f"{BINARY} does not run (asked for its version, exit code {outcome.returncode})")
+    return text.splitlines()[0]

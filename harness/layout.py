@@ -1,0 +1,34 @@
+"""Where things live: the repository's solver scripts and the results tree of a case."""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+from pathlib import Path
+
+REPO = Path(__file__).resolve().parents[1]
+
+
+@dataclass(frozen=True)
+class Layout:
+    """results/<case>/{meshes/mesh_n<N>.msh, n<N>/, n<N>.failed/, convergence.*, summary.json}."""
+
+    results: Path = REPO / "results"
+    freefem: Path = REPO / "freefem"
+
+    def case_dir(self, case: str) -> Path:
+        return self.results / case
+
+    def meshes_dir(self, case: str) -> Path:
+        return self.case_dir(case) / "meshes"
+
+    def level_dir(self, case: str, n: int) -> Path:
+        return self.case_dir(case) / f"n{n}"
+
+    def failed_dir(self, case: str, n: int) -> Path:
+        return self.case_dir(case) / f"n{n}.failed"
+
+    def material_file(self, material: str) -> Path:
+        return self.freefem / "materials" / f"{material}.idp"
+
+    def scheme_file(self) -> Path:
+        return self.freefem / "scheme.idp"

@@ -1,0 +1,130 @@
+"""Build the scene's structured triangle mesh at level n (h = 1/n) with gmsh, MSH 2.2.
+
+gmsh keeps global state and is not thread-safe: call `build_mesh` from one thread at a time
+(the study makes all meshes in the main thread before any FreeFEM run starts).
+"""
+
+from __future__ import annotations
+
+import os
+from dataclasses import replace
+from pathlib import Path
+
+import gmsh
+import numpy as np
+
+from harness.atomic import sibling_temp
+from harness.errors import MeshError
+from harness.mesh_check import MeshSummary, check_mesh
+from harness.schema import ROLE_LABELS
+from harness.segments import Geometry
+
+# gmsh's transfinite arrangement that cuts each cell along the requested diagonal.
+ARRANGEMENT = {"SW-NE": "Right", "NW-SE": "Left"}
+BODY_LABEL = 1
+
+
+def mesh_path(directory: Path, n: int) -> Path:
+    # ".msh" alone would be ambiguous with FreeFEM's own format; the name says which one.
+    return directory / f"mesh_n{n}.msh"
+
+
+def build_mesh(geometry: Geometry, n: int, directory: Path) -> MeshSummary:
+    """Write mesh_n<n>.msh into `directory` (only replacing it if the bytes change) and
+    return its checked summary."""
+    cells = grid_cells(geometry, n)
+    directory.mkdir(parents=True, exist_ok=True)
+    target = mesh_path(directory, n)
+    tmp = sibling_temp(target).with_suffix(".msh")  # gmsh picks the format from the suffix
+    try:
+        write_with_gmsh(geometry, cells, n, tmp)
+        summary = check_mesh(tmp, geometry, n)
+        if not target.exists() or target.read_bytes() != tmp.read_bytes():
+            os.replace(tmp, target)
+    finally:
+        tmp.unlink(missing_ok=True)
+    return replace(summary, path=target)
+
+
+def grid_cells(geometry: Geometry, n: int) -> dict[float, int]:
+    """Number of cells along each breakpoint coordinate and the height; each must be a
+    whole number of h = 1/n or the strips cannot be structured."""
+    cells = {}
+    for x in geometry.breakpoints() + (geometry.height,):
+        count = round(x * n)
+        if abs(count - x * n) > 1e-9 * max(1.0, x * n):  # round-off of x*n only
+            raise MeshError(f"n={n}: {x} is not a multiple of h = 1/{n}")
+        cells[x] = count
+    if cells[geometry.height] == 0:
+        raise MeshError(f"n={n}: height {geometry.height} is below h = 1/{n}")
+    return cells
+
+
+def write_with_gmsh(geometry: Geometry, cells: dict[float, int], n: int, target: Path) -> None:
+    # interruptible=False: gmsh must not install a SIGINT handler (fails off the main thread).
+    gmsh.initialize(readConfigFiles=False, interruptible=False)
+    try:
+        gmsh.option.setNumber("General.Terminal", 0)
+        gmsh.model.add("scene")
+        add_strips(geometry, cells)
+        gmsh.model.mesh.generate(2)
+        snap_to_lattice(n)
+        gmsh.option.setNumber("Mesh.MshFileVersion", 2.2)
+        gmsh.write(str(target))
+    except Exception as exc:  # gmsh raises a bare Exception with its own log text
+        raise MeshError(f"gmsh failed: {exc}") from None
+    finally:
+        gmsh.finalize()
+
+
+def add_strips(geometry: Geometry, cells: dict[float, int]) -> None:
+    """One transfinite surface per vertical strip between consecutive breakpoints."""
+    geo = gmsh.model.geo
+    xs, height = geometry.breakpoints(), geometry.height
+    low = [geo.addPoint(x, 0.0, 0.0) for x in xs]
+    high = [geo.addPoint(x, height, 0.0) for x in xs]
+    verticals = [geo.addLine(a, b) for a, b in zip(low, high)]
+    roles: dict[str, list[int]] = {role: [] for role in ROLE_LABELS}
+    roles[geometry.left].append(verticals[0])
+    roles[geometry.right].append(verticals[-1])
+    surfaces = []
+    for i in range(len(xs) - 1):
+        bottom = geo.addLine(low[i], low[i + 1])
+        top = geo.addLine(high[i + 1], high[i])
+        # Counter-clockwise loop, so the triangles come out positively oriented.
+        loop = geo.addCurveLoop([bottom, verticals[i + 1], top, -verticals[i]])
+        surface = geo.addPlaneSurface([loop])
+        across = cells[xs[i + 1]] - cells[xs[i]] + 1
+        for line in (bottom, top):
+            geo.mesh.setTransfiniteCurve(line, across)
+        geo.mesh.setTransfiniteSurface(
+            surface, ARRANGEMENT[geometry.diagonals], [low[i], low[i + 1], high[i + 1], high[i]]
+        )
+        mid = 0.5 * (xs[i] + xs[i + 1])
+        roles[role_at(geometry.bottom, mid)].append(bottom)
+        roles[role_at(geometry.top, mid)].append(top)
+        surfaces.append(surface)
+    for line in verticals:
+        geo.mesh.setTransfiniteCurve(line, cells[height] + 1)
+    geo.synchronize()
+    for role, curves in roles.items():
+        if curves:
+            gmsh.model.addPhysicalGroup(1, curves, ROLE_LABELS[role], name=role)
+    gmsh.model.addPhysicalGroup(2, surfaces, BODY_LABEL, name="body")
+
+
+def role_at(segments, x: float) -> str:
+    return next(s.role for s in segments if s.x0 < x < s.x1)
+
+
+def snap_to_lattice(n: int) -> None:
+    """Put every node exactly on the h-lattice. gmsh's transfinite nodes carry ~1e-12
+    round-off; exact lattice nodes make level n's nodes exactly nodes of level 2n."""
+    tags, coords, _ = gmsh.model.mesh.getNodes()
+    xyz = coords.reshape(-1, 3)
+    snapped = np.round(xyz * n) / n
+    # Anything beyond round-off means the mesh is not the structured lattice we asked for.
+    if np.abs(snapped - xyz).max() > 1e-6 / n:
+        raise MeshError(f"n={n}: gmsh placed nodes off the h-lattice")
+    for tag, point in zip(tags, snapped):
+        gmsh.model.mesh.setNode(int(tag), point.tolist(), [])

@@ -1,0 +1,29 @@
+"""Convergence rates from errors E(h): least-squares slopes and pairwise orders."""
+
+from __future__ import annotations
+
+import math
+from typing import Sequence
+
+import numpy as np
+
+
+def fitted_slope(h: Sequence[float], errors: Sequence[float]) -> float:
+    """Slope p of the least-squares line log E = p log h + c; NaN when fewer than two
+    points or any error is not positive (a zero error has no logarithm)."""
+    h_arr, e_arr = np.asarray(h, dtype=float), np.asarray(errors, dtype=float)
+    if len(h_arr) < 2 or not np.all(e_arr > 0) or not np.all(np.isfinite(e_arr)):
+        return math.nan
+    slope, _ = np.polyfit(np.log(h_arr), np.log(e_arr), 1)
+    return float(slope)
+
+
+def pairwise_orders(h: Sequence[float], errors: Sequence[float]) -> list[float]:
+    """Order between each level and the previous (coarser) one: log(E_prev/E)/log(h_prev/h),
+    which is log2(E_2h/E_h) for halving h. The first level has none (NaN)."""
+    orders = [math.nan]
+    pairs = list(zip(h, errors))
+    for (h0, e0), (h1, e1) in zip(pairs, pairs[1:]):
+        ok = e0 > 0 and e1 > 0 and h0 != h1
+        orders.append(math.log(e0 / e1) / math.log(h0 / h1) if ok else math.nan)
+    return orders

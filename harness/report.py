@@ -1,0 +1,86 @@
+"""Write a study's baseline (convergence.csv, summary.json, convergence.png) all or nothing."""
+
+from __future__ import annotations
+
+import json
+import math
+import os
+from pathlib import Path
+from typing import Any
+
+from harness.atomic import sibling_temp
+from harness.layout import Layout
+from harness.plot import plot_convergence
+from harness.study import Study
+from harness.versions import tool_versions
+
+# Physical quantities of each run worth keeping next to the errors (from run.json).
+RUN_FACTS = (
+    "converged", "newton_iterations", "wall_s", "dofs", "max_theta", "min_phi", "max_phi",
+    "max_abs_u", "contact_force", "active_length", "initial_guess",
+)
+
+
+def write_report(study: Study, layout: Layout) -> dict[str, Path]:
+    """Render every file to a temp name first; only when all three exist are they moved over
+    the previous baseline, so a failure part-way leaves the old baseline whole."""
+    directory = layout.case_dir(study.scene.name)
+    targets = {
+        "csv": directory / "convergence.csv",
+        "summary": directory / "summary.json",
+        "plot": directory / "convergence.png",
+    }
+    temps = {kind: sibling_temp(path) for kind, path in targets.items()}
+    try:
+        temps["csv"].write_text(study.table.to_csv(index=False, float_format="%.10g"))
+        temps["summary"].write_text(json.dumps(jsonable(summary(study)), indent=2) + "\n")
+        plot_convergence(study, temps["plot"])
+        for kind, target in targets.items():
+            os.replace(temps[kind], target)
+    finally:
+        for tmp in temps.values():
+            tmp.unlink(missing_ok=True)
+    return targets
+
+
+def summary(study: Study) -> dict[str, Any]:
+    low, high = study.scene.slope_band
+    finest = study.table.iloc[-2]  # the finest level with an error
+    return {
+        "case": study.scene.name,
+        "description": study.scene.table["scene"]["description"],
+        "material": study.scene.material,
+        "initial_guess": study.scene.initial_guess,
+        "levels": [int(n) for n in study.table["n"]],
+        "reference_n": study.reference,
+        "fields": list(study.fields),
+        "slopes": study.slopes,
+        "verdict_on": "total slope fitted over every non-reference level",
+        "slope_band": [low, high],
+        "verdict": "pass" if study.passed else "fail",
+        # The three terms carry different units; say which one dominates the sum.
+        "share_of_total_at_finest": {f: finest[f"err_{f}"] / finest["err_total"] for f in study.fields},
+        "sweep_wall_s": study.wall_s,
+        "runs": {str(n): {k: run.record.get(k) for k in RUN_FACTS} for n, run in sorted(study.runs.items())},
+        "scene": study.scene.table,
+        "tools": tool_versions(),
+    }
+
+
+def jsonable(value: Any) -> Any:
+    """Strict JSON: NaN (no value, e.g. the reference's error) becomes null, inf "inf"."""
+    if isinstance(value, dict):
+        return {str(k): jsonable(v) for k, v in value.items()}
+    if isinstance(value, (list, tuple)):
+        return [jsonable(v) for v in value]
+    if hasattr(value, "item"):  # numpy scalars
+        value = value.item()
+    if isinstance(value, float) and not math.isfinite(value):
+        return None if math.isnan(value) else ("inf" if value > 0 else "-inf")
+    return value
+
+
+def format_table(study: Study) -> str:
+    columns = ["n", "h", "dofs", "newton_iterations", "wall_s"]
+    columns += [f"err_{f}" for f in (*study.fields, "total")] + ["order_total"]
+    return study.table[columns].to_string(index=False, float_format=lambda v: f"{v:.4g}", na_rep="-")

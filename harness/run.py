@@ -1,0 +1,134 @@
+"""Run one level: reuse a cached result or run FreeFEM in a temp dir, then swap it in atomically."""
+
+from __future__ import annotations
+
+import json
+import os
+import shutil
+import uuid
+from dataclasses import dataclass
+from pathlib import Path
+from typing import Any
+
+from harness import freefem
+from harness.atomic import write_atomic
+from harness.cache import run_inputs
+from harness.errors import RunError, SceneError
+from harness.layout import Layout
+from harness.scene import Scene
+
+
+@dataclass(frozen=True)
+class RunResult:
+    n: int
+    directory: Path
+    record: dict[str, Any]  # run.json, plus the harness's wall_s
+    reused: bool
+
+    @property
+    def solution(self) -> Path:
+        return self.directory / "solution.vtu"
+
+
+def check_solver_files(scene: Scene, layout: Layout) -> None:
+    """Fail before meshing or running when the case names a material the repo lacks."""
+    if not layout.material_file(scene.material).is_file():
+        raise SceneError(f"unknown material {scene.material!r}: no {layout.material_file(scene.material)}")
+    if not layout.scheme_file().is_file():
+        raise RunError(f"no solver script {layout.scheme_file()}")
+
+
+def run_level(scene: Scene, mesh: Path, n: int, layout: Layout, force: bool = False) -> RunResult:
+    check_solver_files(scene, layout)
+    inputs = run_inputs(mesh, scene.run_inputs(), layout.freefem, freefem.freefem_version(), n)
+    final = layout.level_dir(scene.name, n)
+    cached = cached_result(final, inputs["key"], n)
+    if cached and not force:
+        return cached
+    work = final.with_name(f".tmp-n{n}-{uuid.uuid4().hex[:8]}")
+    work.mkdir(parents=True)
+    try:
+        record = solve_in(work, scene, mesh.resolve(), n, layout)
+    except RunError:
+        keep_failed(work, layout.failed_dir(scene.name, n))
+        raise
+    except BaseException:
+        shutil.rmtree(work, ignore_errors=True)
+        raise
+    write_atomic(work / "inputs.json", json.dumps(inputs, indent=2, sort_keys=True) + "\n")
+    swap_in(work, final)
+    shutil.rmtree(layout.failed_dir(scene.name, n), ignore_errors=True)
+    return RunResult(n, final, record, reused=False)
+
+
+def cached_result(directory: Path, key: str, n: int) -> RunResult | None:
+    try:
+        stored = json.loads((directory / "inputs.json").read_text())
+        record = json.loads((directory / "run.json").read_text())
+    except (OSError, ValueError):
+        return None
+    usable = stored.get("key") == key and record.get("converged") is True
+    if usable and (directory / "solution.vtu").is_file():
+        return RunResult(n, directory, record, reused=True)
+    return None
+
+
+def solve_in(work: Path, scene: Scene, mesh: Path, n: int, layout: Layout) -> dict[str, Any]:
+    script = work / "main.edp"
+    # FreeFEM's include takes a literal file name; nested includes resolve next to the includer.
+    script.write_text(
+        f'include "{layout.material_file(scene.material).resolve()}"\n'
+        f'include "{layout.scheme_file().resolve()}"\n'
+    )
+    options = ["-mesh", str(mesh), "-out", str(work.resolve()), "-n", str(n)]
+    options += freefem.scene_options(scene.solver_parameters(), scene.initial_guess)
+    outcome = freefem.invoke(freefem.command(script, options), work, scene.timeout_s)
+    where = f"{scene.name} n={n}"
+    log = log_file(work, layout.failed_dir(scene.name, n))
+    record = read_record(work)
+    if outcome.returncode != 0:
+        detail = (record or {}).get("reason") or freefem.error_detail(read_logs(work))
+        reason = freefem.failure_reason(outcome, scene.timeout_s, str(detail))
+        raise RunError(f"{where}: {reason} (see {log})")
+    if record is None:
+        raise RunError(f"{where}: FreeFEM wrote no readable run.json (see {log})")
+    if record.get("converged") is not True:
+        raise RunError(f"{where}: not converged: {record.get('reason', 'no reason given')} (see {log})")
+    if not (work / "solution.vtu").is_file():
+        raise RunError(f"{where}: FreeFEM wrote no solution.vtu (see {log})")
+    record["wall_s"] = outcome.wall_s
+    write_atomic(work / "run.json", json.dumps(record, indent=2) + "\n")
+    return record
+
+
+def read_record(work: Path) -> dict[str, Any] | None:
+    try:
+        record = json.loads((work / "run.json").read_text())
+    except (OSError, ValueError):
+        return None
+    return record if isinstance(record, dict) else None
+
+
+def read_logs(work: Path) -> str:
+    return "\n".join((work / name).read_text(errors="replace") for name in ("stderr.txt", "stdout.txt"))
+
+
+def log_file(work: Path, failed: Path) -> Path:
+    """The log a user should open once the failed run sits in `failed`: FreeFEM reports its
+    errors on stdout, so stderr is only worth pointing at when it says something."""
+    name = "stderr.txt" if (work / "stderr.txt").stat().st_size else "stdout.txt"
+    return failed / name
+
+
+def keep_failed(work: Path, failed: Path) -> None:
+    """Park a failed run where its logs can be read, never over the last good result."""
+    shutil.rmtree(failed, ignore_errors=True)
+    os.replace(work, failed)
+
+
+def swap_in(work: Path, final: Path) -> None:
+    old = final.with_name(f".old-{final.name}-{uuid.uuid4().hex[:8]}")
+    if final.exists():
+        os.replace(final, old)
+    os.replace(work, final)
+    shutil.rmtree(old, ignore_errors=True)

@@ -1,0 +1,135 @@
+"""Load a case file (TOML) plus `--set section.key=value` overrides into a frozen Scene."""
+
+from __future__ import annotations
+
+import copy
+import math
+import tomllib
+from dataclasses import dataclass
+from pathlib import Path
+from typing import Any, Iterable
+
+from harness.errors import SceneError
+from harness.schema import REQUIRED, SCHEMA, SOLVER_SECTIONS, Key
+from harness.segments import Geometry, parse_geometry
+
+
+@dataclass(frozen=True)
+class Scene:
+    """A validated case. `table` is the resolved case file (defaults filled, overrides applied)."""
+
+    source: Path
+    table: dict[str, dict[str, Any]]
+    geometry: Geometry
+
+    @property
+    def name(self) -> str:
+        return self.table["scene"]["name"]
+
+    @property
+    def material(self) -> str:
+        return self.table["scene"]["material"]
+
+    @property
+    def initial_guess(self) -> str:
+        return self.table["scene"]["initial_guess"]
+
+    @property
+    def timeout_s(self) -> float:
+        return self.table["run"]["timeout_s"]
+
+    @property
+    def levels(self) -> tuple[int, ...]:
+        return tuple(self.table["study"]["levels"])
+
+    @property
+    def slope_band(self) -> tuple[float, float]:
+        low, high = self.table["study"]["slope_band"]
+        return float(low), float(high)
+
+    def solver_parameters(self) -> dict[str, dict[str, Any]]:
+        """The sections FreeFEM reads, one dict per section."""
+        return {s: dict(self.table[s]) for s in SOLVER_SECTIONS}
+
+    def run_inputs(self) -> dict[str, Any]:
+        """Everything in the scene that can change a single solve (not the study settings),
+        so that editing levels or the band does not invalidate cached runs."""
+        return {
+            "material": self.material,
+            "initial_guess": self.initial_guess,
+            "geometry": copy.deepcopy(self.table["geometry"]),
+            **self.solver_parameters(),
+        }
+
+
+def load_scene(path: Path, overrides: Iterable[str] = ()) -> Scene:
+    path = Path(path)
+    try:
+        raw = tomllib.loads(path.read_text())
+    except FileNotFoundError:
+        raise SceneError(f"case file not found: {path}") from None
+    except (OSError, UnicodeDecodeError) as exc:
+        raise SceneError(f"cannot read case file {path}: {exc}") from None
+    except tomllib.TOMLDecodeError as exc:
+        raise SceneError(f"malformed case file {path}: {exc}") from None
+    for item in overrides:
+        apply_override(raw, item)
+    table = resolve(raw)
+    return Scene(source=path, table=table, geometry=parse_geometry(table["geometry"]))
+
+
+def parse_value(text: str) -> Any:
+    """A TOML scalar or array; anything TOML rejects is taken as a bare string (`pressed`)."""
+    try:
+        return tomllib.loads(f"v = {text}")["v"]
+    except tomllib.TOMLDecodeError:
+        return text.strip()
+
+
+def apply_override(raw: dict, item: str) -> None:
+    dotted, sep, text = item.partition("=")
+    dotted = dotted.strip()
+    section, _, key = dotted.partition(".")
+    if not sep or key not in SCHEMA.get(section, {}):
+        raise SceneError(f"--set {item!r}: no such key {dotted!r} (expected section.key=value)")
+    raw.setdefault(section, {})[key] = parse_value(text)
+
+
+def resolve(raw: dict) -> dict[str, dict[str, Any]]:
+    for section in raw:
+        if section not in SCHEMA:
+            raise SceneError(f"unknown section [{section}]")
+        if not isinstance(raw[section], dict):
+            raise SceneError(f"{section} must be a [section]")
+    table = {}
+    for section, keys in SCHEMA.items():
+        given = raw.get(section, {})
+        for key in given:
+            if key not in keys:
+                raise SceneError(f"unknown key {section}.{key}")
+        table[section] = {
+            key: checked(f"{section}.{key}", spec, given.get(key, spec.default))
+            for key, spec in keys.items()
+        }
+    return table
+
+
+def checked(name: str, spec: Key, value: Any) -> Any:
+    if value is REQUIRED:
+        raise SceneError(f"missing key {name}")
+    value = coerced(name, spec.kind, value)
+    if isinstance(value, float) and math.isnan(value):
+        raise SceneError(f"{name} = nan is not a number")
+    complaint = spec.check(value) if spec.check else None
+    if complaint:
+        raise SceneError(f"{name} = {value!r} {complaint}")
+    return value
+
+
+def coerced(name: str, kind: type, value: Any) -> Any:
+    # TOML keeps 1 and 1.0 apart; a float key accepts an integer, but bool is never a number.
+    if kind is float and type(value) is int:
+        return float(value)
+    if type(value) is not kind:
+        raise SceneError(f"{name} = {value!r} must be of type {kind.__name__}")
+    return value

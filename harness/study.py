@@ -1,0 +1,153 @@
+"""A convergence study: meshes, parallel FreeFEM runs, E^h against the finest level, rates."""
+
+from __future__ import annotations
+
+import math
+import sys
+import time
+from concurrent.futures import ThreadPoolExecutor, as_completed
+from dataclasses import dataclass
+from pathlib import Path
+from typing import Callable
+
+import pandas as pd
+
+from harness.errors import RunError
+from harness.fields import read_fields
+from harness.layout import Layout
+from harness.mesh import build_mesh
+from harness.norms import error_norms
+from harness.rates import fitted_slope, pairwise_orders
+from harness.run import RunResult, check_solver_files, run_level
+from harness.scene import Scene
+
+# Fields the error measure knows, in the order PROBLEM.md sums them (V, W, Q).
+NORMED_FIELDS = ("u", "phi", "theta")
+
+
+@dataclass(frozen=True)
+class Study:
+    scene: Scene
+    fields: tuple[str, ...]
+    table: pd.DataFrame  # one row per level, the reference last with blank errors
+    slopes: dict[str, dict[str, float]]  # field or "total" -> {"all": p, "window": p}
+    runs: dict[int, RunResult]
+    wall_s: float
+
+    @property
+    def reference(self) -> int:
+        return max(self.runs)
+
+    @property
+    def total_slope(self) -> float:
+        """The slope the verdict is about: E_total fitted over every non-reference level."""
+        return self.slopes["total"]["all"]
+
+    @property
+    def passed(self) -> bool:
+        low, high = self.scene.slope_band
+        return low <= self.total_slope <= high
+
+
+def stderr_line(text: str) -> None:
+    print(text, file=sys.stderr, flush=True)
+
+
+def run_study(
+    scene: Scene,
+    levels: tuple[int, ...],
+    layout: Layout,
+    jobs: int,
+    force: bool = False,
+    progress: Callable[[str], None] = stderr_line,
+) -> Study:
+    levels = tuple(sorted(set(levels)))
+    if len(levels) < 2:
+        raise RunError("a convergence study needs at least two levels (the finest is the reference)")
+    check_solver_files(scene, layout)
+    start = time.perf_counter()
+    # gmsh is not thread-safe: every mesh is made here, in this thread, before any run starts.
+    meshes = {n: build_mesh(scene.geometry, n, layout.meshes_dir(scene.name)).path for n in levels}
+    runs = run_all(scene, meshes, layout, jobs, force, progress)
+    fields = tuple(f for f in NORMED_FIELDS if f in runs[levels[-1]].record.get("fields", NORMED_FIELDS))
+    table = error_table(runs, fields)
+    return Study(scene, fields, table, slopes(table, fields), runs, time.perf_counter() - start)
+
+
+def run_all(
+    scene: Scene,
+    meshes: dict[int, Path],
+    layout: Layout,
+    jobs: int,
+    force: bool,
+    progress: Callable[[str], None],
+) -> dict[int, RunResult]:
+    runs: dict[int, RunResult] = {}
+    failures: list[str] = []
+    with ThreadPoolExecutor(max_workers=max(1, jobs)) as pool:
+        # Largest first: the finest level dominates the sweep's wall time.
+        futures = {
+            pool.submit(run_level, scene, meshes[n], n, layout, force): n
+            for n in sorted(meshes, reverse=True)
+        }
+        for count, future in enumerate(as_completed(futures), start=1):
+            n = futures[future]
+            try:
+                runs[n] = future.result()
+            except RunError as exc:
+                failures.append(str(exc))
+                progress(f"[{count}/{len(meshes)}] n={n} FAILED")
+                continue
+            progress(f"[{count}/{len(meshes)}] n={n} {describe(runs[n])}")
+    if failures:
+        more = f" (+{len(failures) - 1} more failed levels)" if len(failures) > 1 else ""
+        raise RunError(failures[0] + more)
+    return runs
+
+
+def describe(run: RunResult) -> str:
+    its = run.record.get("newton_iterations", "?")
+    if run.reused:
+        return f"reused (inputs unchanged), {its} Newton its"
+    return f"done in {run.record.get('wall_s', math.nan):.1f} s, {its} Newton its"
+
+
+def error_table(runs: dict[int, RunResult], fields: tuple[str, ...]) -> pd.DataFrame:
+    levels = sorted(runs)
+    reference = read_fields(runs[levels[-1]].solution)
+    rows = []
+    for n in levels:
+        record = runs[n].record
+        errors = (
+            error_norms(read_fields(runs[n].solution), reference, list(fields))
+            if n != levels[-1]
+            else dict.fromkeys(fields, math.nan)
+        )
+        row = {
+            "n": n,
+            "h": 1.0 / n,
+            "dofs": record.get("dofs"),
+            "newton_iterations": record.get("newton_iterations"),
+            "wall_s": record.get("wall_s"),
+        }
+        row.update({f"err_{f}": errors[f] for f in fields})
+        row["err_total"] = sum(errors.values())
+        rows.append(row)
+    table = pd.DataFrame(rows)
+    for name in (*fields, "total"):
+        table[f"order_{name}"] = pairwise_orders(table["h"], table[f"err_{name}"])
+    return table
+
+
+def slopes(table: pd.DataFrame, fields: tuple[str, ...]) -> dict[str, dict[str, float]]:
+    """Fits over every non-reference level, and over a window that also leaves out the level
+    next to the reference (whose error is polluted by the reference's own error)."""
+    graded = table.iloc[:-1]
+    window = graded.iloc[:-1]
+    return {
+        name: {
+            "all": fitted_slope(graded["h"], graded[f"err_{name}"]),
+            "window": fitted_slope(window["h"], window[f"err_{name}"]),
+        }
+        for name in (*fields, "total")
+    }
