@@ -1,0 +1,32 @@
+# Front door. Each target installs what it lacks: FreeFEM from Debian's packages and a
+# project venv (.venv) from pyproject.toml's pinned versions.
+PYTHON ?= python3
+VENV := .venv
+PY := $(VENV)/bin/python
+STAMP := $(VENV)/.installed
+
+.PHONY: convergence test baseline freefem clean-runs
+
+convergence: $(STAMP) freefem
+	$(PY) -m harness convergence cases/paper.toml
+
+test: $(STAMP) freefem
+	$(PY) -m pytest -q
+
+# The fast study the slope-regression test compares with (tests/test_regression.py).
+# Regenerate only for an intended change of the scheme, and commit results/paper_fast/.
+baseline: $(STAMP) freefem
+	-$(PY) -m harness convergence cases/paper.toml --levels 2,4,8,16,32 --set scene.name=paper_fast --force
+
+freefem:
+	@bash scripts/install-freefem.sh
+
+$(STAMP): pyproject.toml
+	$(PYTHON) -m venv $(VENV)
+	$(PY) -m pip install -q --upgrade pip
+	$(PY) -m pip install -q -e .
+	touch $(STAMP)
+
+# Per-level run folders and meshes (not the committed CSV/JSON/PNG baseline).
+clean-runs:
+	find results -mindepth 2 -maxdepth 2 -type d \( -name 'n*' -o -name meshes -o -name '.tmp-*' \) -exec rm -rf {} +
