@@ -1,5 +1,5 @@
 # Front door. Each target installs what it lacks: FreeFEM from Debian's packages and a
-# project venv (.venv) from pyproject.toml's pinned versions.
+# project venv (.venv) from pyproject.toml's pinned versions, rebuilt when that file changes.
 PYTHON ?= python3
 VENV := .venv
 PY := $(VENV)/bin/python
@@ -22,11 +22,9 @@ freefem:
 	@bash scripts/install-freefem.sh
 
 $(STAMP): pyproject.toml
-	$(PYTHON) -m venv $(VENV)
-	$(PY) -m pip install -q --upgrade pip
-	$(PY) -m pip install -q -e .
-	touch $(STAMP)
+	bash scripts/make-venv.sh $(PYTHON) $(VENV)
 
-# Per-level run folders and meshes (not the committed CSV/JSON/PNG baseline).
+# Per-level run folders (good, failed, half-swapped) and meshes; not the committed
+# CSV/JSON/PNG baseline.
 clean-runs:
-	find results -mindepth 2 -maxdepth 2 -type d \( -name 'n*' -o -name meshes -o -name '.tmp-*' \) -exec rm -rf {} +
+	find results -mindepth 2 -maxdepth 2 -type d \( -name 'n[0-9]*' -o -name meshes -o -name '.tmp-*' -o -name '.old-*' \) -exec rm -rf {} +

@@ -90,8 +90,10 @@ def apply_override(raw: dict, item: str) -> None:
     dotted, sep, text = item.partition("=")
     dotted = dotted.strip()
     section, _, key = dotted.partition(".")
-    if not sep or key not in SCHEMA.get(section, {}):
-        raise SceneError(f"--set {item!r}: no such key {dotted!r} (expected section.key=value)")
+    if not sep:
+        raise SceneError(f"--set {item!r}: expected section.key=value")
+    if key not in SCHEMA.get(section, {}):
+        raise SceneError(f"--set {item!r}: no such key {dotted!r} in the case-file schema")
     raw.setdefault(section, {})[key] = parse_value(text)
 
 

@@ -5,9 +5,5 @@ set -euo pipefail
 if command -v FreeFem++ >/dev/null 2>&1 && [ -d /usr/lib/freefem++ ]; then
   exit 0
 fi
-echo "installing FreeFEM (Debian packages freefem++ libfreefem++)..." >&2
-sudo=""
-if [ "$(id -u)" -ne 0 ]; then sudo="sudo"; fi
-$sudo apt-get update -qq
-DEBIAN_FRONTEND=noninteractive $sudo apt-get install -y -qq freefem++ libfreefem++ >/dev/null
+bash "$(dirname "$0")/apt-install.sh" freefem++ libfreefem++
 command -v FreeFem++ >/dev/null || { echo "error: FreeFem++ still missing after apt-get install" >&2; exit 1; }

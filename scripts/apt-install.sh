@@ -1,0 +1,11 @@
+#!/usr/bin/env bash
+# apt-get install the given Debian packages, as root or through sudo.
+set -euo pipefail
+sudo=""
+if [ "$(id -u)" -ne 0 ]; then
+  command -v sudo >/dev/null || { echo "error: need root or sudo to install: $*" >&2; exit 1; }
+  sudo="sudo"
+fi
+echo "installing Debian packages: $* ..." >&2
+$sudo apt-get update -qq
+$sudo env DEBIAN_FRONTEND=noninteractive apt-get install -y -qq "$@" >/dev/null
