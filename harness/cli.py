@@ -13,7 +13,7 @@ from harness.layout import Layout
 from harness.mesh import build_mesh
 from harness.report import format_table, write_report
 from harness.run import check_solver_files, run_level
-from harness.scene import load_scene
+from harness.scene import Scene, load_scene
 from harness.study import run_study
 
 EXIT_ERROR = 2  # an expected failure: bad input, failed run
@@ -74,7 +74,7 @@ def main(argv: Sequence[str] | None = None) -> int:
         return 130
 
 
-def solve(scene, n: int, layout: Layout, force: bool) -> int:
+def solve(scene: Scene, n: int, layout: Layout, force: bool) -> int:
     check_solver_files(scene, layout)
     mesh = build_mesh(scene.geometry, n, layout.meshes_dir(scene.name))
     result = run_level(scene, mesh.path, n, layout, force)
@@ -82,7 +82,7 @@ def solve(scene, n: int, layout: Layout, force: bool) -> int:
     return 0
 
 
-def convergence(scene, levels: tuple[int, ...], layout: Layout, jobs: int, force: bool) -> int:
+def convergence(scene: Scene, levels: tuple[int, ...], layout: Layout, jobs: int, force: bool) -> int:
     study = run_study(scene, levels, layout, jobs, force)
     paths = write_report(study, layout)
     print(format_table(study))

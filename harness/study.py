@@ -14,6 +14,7 @@ import pandas as pd
 
 from harness.errors import RunError
 from harness.fields import read_fields
+from harness.freefem import freefem_version
 from harness.layout import Layout
 from harness.mesh import build_mesh
 from harness.norms import error_norms
@@ -65,6 +66,7 @@ def run_study(
     if len(levels) < 2:
         raise RunError("a convergence study needs at least two levels (the finest is the reference)")
     check_solver_files(scene, layout)
+    freefem_version()  # asked once here, not by every worker thread at once
     start = time.perf_counter()
     # gmsh is not thread-safe: every mesh is made here, in this thread, before any run starts.
     meshes = {n: build_mesh(scene.geometry, n, layout.meshes_dir(scene.name)).path for n in levels}

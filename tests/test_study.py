@@ -90,7 +90,7 @@ def test_progress_is_one_line_per_level(stub_study):
     assert all(line.startswith(f"[{k}/4] n=") and "Newton its" in line for k, line in enumerate(lines, 1))
 
 
-def test_a_second_study_reuses_every_run_and_force_reruns(stub_study, paper_case, stub_layout):
+def test_a_second_study_reuses_every_run_and_force_reruns(stub_study, stub_layout):
     study, _ = stub_study
     lines: list[str] = []
     again = run_study(study.scene, (2, 4, 8, 16), stub_layout, jobs=2, progress=lines.append)
@@ -101,6 +101,7 @@ def test_a_second_study_reuses_every_run_and_force_reruns(stub_study, paper_case
 
 
 def test_a_changed_scene_value_is_a_cache_miss(stub_study, paper_case, stub_layout):
+    """stub_study has filled the cache; a different contact.S must not hit it."""
     scene = load_scene(paper_case, ["contact.S=0"])
     again = run_study(scene, (2, 4), stub_layout, jobs=1, progress=lambda line: None)
     assert not any(run.reused for run in again.runs.values())
