@@ -28,3 +28,10 @@ $(STAMP): pyproject.toml
 # CSV/JSON/PNG baseline.
 clean-runs:
 	find results -mindepth 2 -maxdepth 2 -type d \( -name 'n[0-9]*' -o -name meshes -o -name '.tmp-*' -o -name '.old-*' \) -exec rm -rf {} +
+
+# Verification beyond self-convergence (issue 6): true errors of the manufactured cases
+# (cases/mms/, h = 1/4 ... 1/32) and the three-grid GCI of the paper's scene (its runs are
+# reused when cached), into results/verification/ and results/paper/gci.csv.
+.PHONY: verify
+verify: $(STAMP) freefem
+	$(PY) -m harness.verify --levels 4,8,16,32

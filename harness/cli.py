@@ -12,7 +12,7 @@ from harness.errors import HarnessError
 from harness.layout import Layout
 from harness.mesh import build_mesh
 from harness.report import format_table, write_report
-from harness.run import check_solver_files, run_level
+from harness.run import WarmStart, check_solver_files, run_level
 from harness.scene import Scene, load_scene
 from harness.study import run_study
 
@@ -52,6 +52,8 @@ def parser() -> Parser:
         sub.add_argument("case", type=Path, help="case file, e.g. cases/paper.toml")
         sub.add_argument("--set", dest="overrides", action="append", default=[], metavar="KEY=VALUE",
                          help="override a case-file value, e.g. contact.S=0 (repeatable)")
+        sub.add_argument("--effects", help="comma-separated effects, replacing the case's "
+                         "(e.g. piezoelectric,contact,friction,electric_contact)")
         sub.add_argument("--force", action="store_true", help="rerun even if inputs are unchanged")
         sub.add_argument("--results", type=Path, default=Layout().results, help="results root")
         sub.add_argument("--freefem", type=Path, default=Layout().freefem, help="solver scripts")
@@ -62,7 +64,13 @@ def main(argv: Sequence[str] | None = None) -> int:
     args = parser().parse_args(argv)
     layout = Layout(results=args.results, freefem=args.freefem)
     try:
-        scene = load_scene(args.case, args.overrides)
+        overrides = list(args.overrides)
+        if args.effects is not None:
+            names = [e.strip() for e in args.effects.split(",") if e.strip()]
+            overrides.append("scene.effects=" + repr(names).replace("'", '"'))
+        scene = load_scene(args.case, overrides)
+        for warning in scene.warnings:
+            print(f"warning: {warning}", file=sys.stderr)
         if args.command == "solve":
             return solve(scene, args.n, layout, args.force)
         return convergence(scene, args.levels or scene.levels, layout, args.jobs, args.force)
@@ -76,8 +84,15 @@ def main(argv: Sequence[str] | None = None) -> int:
 
 def solve(scene: Scene, n: int, layout: Layout, force: bool) -> int:
     check_solver_files(scene, layout)
+    warm = None
+    if scene.initial_guess == "coarser":
+        # The case's levels below n, each started from the one before (cached when unchanged).
+        for coarse in sorted(level for level in scene.levels if level < n):
+            mesh = build_mesh(scene.geometry, coarse, layout.meshes_dir(scene.name))
+            run = run_level(scene, mesh.path, coarse, layout, force, warm)
+            warm = WarmStart(mesh.path, run.directory / "state.txt")
     mesh = build_mesh(scene.geometry, n, layout.meshes_dir(scene.name))
-    result = run_level(scene, mesh.path, n, layout, force)
+    result = run_level(scene, mesh.path, n, layout, force, warm)
     print(describe_run(scene.name, result.record, result.directory, result.reused))
     return 0
 

@@ -32,6 +32,7 @@ EXIT_REASONS = {
     10: "Newton diverged (growing residual)",
     11: "NaN/Inf in Newton",
     12: "Newton hit its maximum number of iterations",
+    14: "invalid material",  # freefem/material.idp; its `error: material ...` line follows
 }
 
 # The first line of FreeFEM's own report of what went wrong (it writes to stdout).
@@ -42,6 +43,7 @@ ERROR_LINE = re.compile(r"error|assertion fail", re.IGNORECASE)
 class Outcome:
     returncode: int | None  # None: killed on timeout
     wall_s: float
+    peak_rss_mb: float = float("nan")  # resident set size high-water mark of FreeFEM
 
 
 def environment() -> dict[str, str]:
@@ -84,15 +86,27 @@ def invoke(argv: list[str], cwd: Path, timeout_s: float) -> Outcome:
             )
         except FileNotFoundError:
             raise RunError(f"{BINARY} not found on PATH (`make test` or `make convergence` installs it)") from None
+        code, rss = None, float("nan")
         try:
-            code: int | None = proc.wait(timeout=timeout_s)
-        except subprocess.TimeoutExpired:
-            code = None
+            code, rss = wait_measured(proc, timeout_s)
         finally:
-            if proc.poll() is None:  # timeout, or the caller was interrupted
+            if proc.returncode is None:  # timeout, or the caller was interrupted
                 os.killpg(proc.pid, signal.SIGKILL)
                 proc.wait()
-    return Outcome(code, time.perf_counter() - start)
+    return Outcome(code, time.perf_counter() - start, rss)
+
+
+def wait_measured(proc: subprocess.Popen, timeout_s: float) -> tuple[int | None, float]:
+    """Wait for `proc` (None on timeout) and read its own peak RSS from wait4's rusage,
+    which, unlike RUSAGE_CHILDREN, is this child's alone (Linux reports it in KiB)."""
+    deadline = time.monotonic() + timeout_s
+    while time.monotonic() < deadline:
+        pid, status, usage = os.wait4(proc.pid, os.WNOHANG)
+        if pid == proc.pid:
+            proc.returncode = os.waitstatus_to_exitcode(status)
+            return proc.returncode, usage.ru_maxrss / 1024.0
+        time.sleep(0.01)
+    return None, float("nan")
 
 
 def error_detail(log: str) -> str:

@@ -30,5 +30,9 @@ class Layout:
     def material_file(self, material: str) -> Path:
         return self.freefem / "materials" / f"{material}.idp"
 
+    def material_reduction_file(self) -> Path:
+        """Derives the plane-strain constants the scheme uses from a material's 3D set."""
+        return self.freefem / "material.idp"
+
     def scheme_file(self) -> Path:
         return self.freefem / "scheme.idp"

@@ -3,6 +3,7 @@
 from __future__ import annotations
 
 import math
+from dataclasses import dataclass
 from typing import Sequence
 
 import numpy as np
@@ -27,3 +28,31 @@ def pairwise_orders(h: Sequence[float], errors: Sequence[float]) -> list[float]:
         ok = e0 > 0 and e1 > 0 and h0 != h1
         orders.append(math.log(e0 / e1) / math.log(h0 / h1) if ok else math.nan)
     return orders
+
+
+@dataclass(frozen=True)
+class SlopeFit:
+    """log E = slope log h + intercept, by least squares, with the slope's standard error
+    sqrt(s^2 / Sxx), s^2 = residual sum of squares / (points - 2) (NaN from two points)."""
+
+    slope: float
+    stderr: float
+    intercept: float
+    points: int
+
+    def level(self, h: float) -> float:
+        """The fitted error at h: the error constant, read where the data are."""
+        return math.exp(self.intercept + self.slope * math.log(h))
+
+
+def slope_fit(h: Sequence[float], errors: Sequence[float]) -> SlopeFit:
+    h_arr, e_arr = np.asarray(h, dtype=float), np.asarray(errors, dtype=float)
+    if len(h_arr) < 2 or not np.all(e_arr > 0) or not np.all(np.isfinite(e_arr)):
+        return SlopeFit(math.nan, math.nan, math.nan, len(h_arr))
+    x, y = np.log(h_arr), np.log(e_arr)
+    slope, intercept = np.polyfit(x, y, 1)
+    dof = len(x) - 2
+    sxx = float(np.sum((x - x.mean()) ** 2))
+    residual = float(np.sum((y - (slope * x + intercept)) ** 2))
+    stderr = math.sqrt(residual / dof / sxx) if dof > 0 else math.nan
+    return SlopeFit(float(slope), stderr, float(intercept), len(x))

@@ -12,10 +12,34 @@ from typing import Any
 
 from harness import freefem
 from harness.atomic import write_atomic
-from harness.cache import run_inputs
+from harness.cache import run_inputs, sha256_bytes
 from harness.errors import RunError, SceneError
 from harness.layout import Layout
+from harness.mms import scene_macros
 from harness.scene import Scene
+from harness.script import main_script
+
+
+@dataclass(frozen=True)
+class WarmStart:
+    """A converged state to start Newton from: its mesh and its state.txt (output.idp)."""
+
+    mesh: Path
+    state: Path
+
+
+def start_of(scene: Scene, warm: WarmStart | None) -> tuple[str, WarmStart | None]:
+    """FreeFEM's initial_guess and the state it reads, from the scene and an optional coarser run."""
+    guess = scene.initial_guess
+    if guess == "coarser":
+        return ("file", warm) if warm else (scene.table["scene"]["coarsest_guess"], None)
+    if guess == "file":
+        given = WarmStart(Path(scene.table["scene"]["initial_mesh"]), Path(scene.table["scene"]["initial_state"]))
+        for what, path in (("initial_mesh", given.mesh), ("initial_state", given.state)):
+            if not path.is_file():
+                raise SceneError(f"initial_guess = file: scene.{what} {str(path)!r} is not a file")
+        return "file", given
+    return guess, None
 
 
 @dataclass(frozen=True)
@@ -32,15 +56,23 @@ class RunResult:
 
 def check_solver_files(scene: Scene, layout: Layout) -> None:
     """Fail before meshing or running when the case names a material the repo lacks."""
-    if not layout.material_file(scene.material).is_file():
-        raise SceneError(f"unknown material {scene.material!r}: no {layout.material_file(scene.material)}")
+    wanted = layout.material_file(scene.material)
+    if not wanted.is_file():
+        available = ", ".join(sorted(p.stem for p in wanted.parent.glob("*.idp"))) or "none"
+        raise SceneError(f"unknown material {scene.material!r}: no {wanted} (available: {available})")
     if not layout.scheme_file().is_file():
         raise RunError(f"no solver script {layout.scheme_file()}")
 
 
-def run_level(scene: Scene, mesh: Path, n: int, layout: Layout, force: bool = False) -> RunResult:
+def run_level(
+    scene: Scene, mesh: Path, n: int, layout: Layout, force: bool = False, warm: WarmStart | None = None
+) -> RunResult:
     check_solver_files(scene, layout)
-    inputs = run_inputs(mesh, scene.run_inputs(), layout.freefem, freefem.freefem_version(), n)
+    guess, start = start_of(scene, warm)
+    described = {**scene.run_inputs(), "start": guess}
+    if start:
+        described["start_state_sha256"] = sha256_bytes(start.state.read_bytes())
+    inputs = run_inputs(mesh, described, layout.freefem, freefem.freefem_version(), n)
     final = layout.level_dir(scene.name, n)
     cached = cached_result(final, inputs["key"], n)
     if cached and not force:
@@ -48,7 +80,7 @@ def run_level(scene: Scene, mesh: Path, n: int, layout: Layout, force: bool = Fa
     work = final.with_name(f".tmp-n{n}-{uuid.uuid4().hex[:8]}")
     work.mkdir(parents=True)
     try:
-        record = solve_in(work, scene, mesh.resolve(), n, layout)
+        record = solve_in(work, scene, mesh.resolve(), n, layout, guess, start)
     except RunError:
         keep_failed(work, layout.failed_dir(scene.name, n))
         raise
@@ -73,15 +105,15 @@ def cached_result(directory: Path, key: str, n: int) -> RunResult | None:
     return None
 
 
-def solve_in(work: Path, scene: Scene, mesh: Path, n: int, layout: Layout) -> dict[str, Any]:
+def solve_in(
+    work: Path, scene: Scene, mesh: Path, n: int, layout: Layout, guess: str, start: WarmStart | None
+) -> dict[str, Any]:
     script = work / "main.edp"
-    # FreeFEM's include takes a literal file name; nested includes resolve next to the includer.
-    script.write_text(
-        f'include "{layout.material_file(scene.material).resolve()}"\n'
-        f'include "{layout.scheme_file().resolve()}"\n'
-    )
+    script.write_text(main_script(scene.material, scene.effects, layout, macros=scene_macros(scene, layout)))
     options = ["-mesh", str(mesh), "-out", str(work.resolve()), "-n", str(n)]
-    options += freefem.scene_options(scene.solver_parameters(), scene.initial_guess)
+    options += freefem.scene_options(scene.solver_parameters(), guess)
+    if start:
+        options += ["-init.mesh", str(start.mesh.resolve()), "-init.state", str(start.state.resolve())]
     outcome = freefem.invoke(freefem.command(script, options), work, scene.timeout_s)
     where = f"{scene.name} n={n}"
     log = log_file(work, layout.failed_dir(scene.name, n))
@@ -97,6 +129,9 @@ def solve_in(work: Path, scene: Scene, mesh: Path, n: int, layout: Layout) -> di
     if not (work / "solution.vtu").is_file():
         raise RunError(f"{where}: FreeFEM wrote no solution.vtu (see {log})")
     record["wall_s"] = outcome.wall_s
+    record["peak_rss_mb"] = outcome.peak_rss_mb
+    record["initial_guess"] = scene.initial_guess
+    record["started_from"] = guess if not start else f"file {start.state}"
     write_atomic(work / "run.json", json.dumps(record, indent=2) + "\n")
     return record
 

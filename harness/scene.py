@@ -10,7 +10,7 @@ from pathlib import Path
 from typing import Any, Iterable
 
 from harness.errors import SceneError
-from harness.schema import REQUIRED, SCHEMA, SOLVER_SECTIONS, Key
+from harness.schema import EFFECTS, REQUIRED, SCHEMA, SOLVER_SECTIONS, Key, effect_of
 from harness.segments import Geometry, parse_geometry
 
 
@@ -21,6 +21,7 @@ class Scene:
     source: Path
     table: dict[str, dict[str, Any]]
     geometry: Geometry
+    warnings: tuple[str, ...] = ()
 
     @property
     def name(self) -> str:
@@ -29,6 +30,16 @@ class Scene:
     @property
     def material(self) -> str:
         return self.table["scene"]["material"]
+
+    @property
+    def effects(self) -> tuple[str, ...]:
+        """The scene's effects in the canonical order of schema.EFFECTS."""
+        on = set(self.table["scene"]["effects"])
+        return tuple(e for e in EFFECTS if e in on)
+
+    @property
+    def fields(self) -> tuple[str, ...]:
+        return ("u",) + ("phi",) * ("piezoelectric" in self.effects) + ("theta",) * ("thermal" in self.effects)
 
     @property
     def initial_guess(self) -> str:
@@ -47,9 +58,20 @@ class Scene:
         low, high = self.table["study"]["slope_band"]
         return float(low), float(high)
 
+    @property
+    def manufactured(self) -> dict[str, str]:
+        """The exact solution of a manufactured case (harness/mms.py); empty for any other."""
+        given = self.table.get("manufactured", {})
+        return dict(given) if any(v.strip() for v in given.values()) else {}
+
     def solver_parameters(self) -> dict[str, dict[str, Any]]:
-        """The sections FreeFEM reads, one dict per section."""
-        return {s: dict(self.table[s]) for s in SOLVER_SECTIONS}
+        """The values FreeFEM reads, one dict per section; data of effects that are off are
+        left out (FreeFEM never assembles their terms)."""
+        on = set(self.effects)
+        return {
+            s: {k: v for k, v in self.table[s].items() if effect_of(s, k) in (None, *on)}
+            for s in SOLVER_SECTIONS
+        }
 
     def run_inputs(self) -> dict[str, Any]:
         """Everything in the scene that can change a single solve (not the study settings),
@@ -57,8 +79,10 @@ class Scene:
         return {
             "material": self.material,
             "initial_guess": self.initial_guess,
+            "effects": list(self.effects),
             "geometry": copy.deepcopy(self.table["geometry"]),
             **self.solver_parameters(),
+            **({"manufactured": self.manufactured} if self.manufactured else {}),
         }
 
 
@@ -74,8 +98,8 @@ def load_scene(path: Path, overrides: Iterable[str] = ()) -> Scene:
         raise SceneError(f"malformed case file {path}: {exc}") from None
     for item in overrides:
         apply_override(raw, item)
-    table = resolve(raw)
-    return Scene(source=path, table=table, geometry=parse_geometry(table["geometry"]))
+    table, warnings = resolve(raw)
+    return Scene(source=path, table=table, geometry=parse_geometry(table["geometry"]), warnings=warnings)
 
 
 def parse_value(text: str) -> Any:
@@ -97,23 +121,31 @@ def apply_override(raw: dict, item: str) -> None:
     raw.setdefault(section, {})[key] = parse_value(text)
 
 
-def resolve(raw: dict) -> dict[str, dict[str, Any]]:
+def resolve(raw: dict) -> tuple[dict[str, dict[str, Any]], tuple[str, ...]]:
     for section in raw:
         if section not in SCHEMA:
             raise SceneError(f"unknown section [{section}]")
         if not isinstance(raw[section], dict):
             raise SceneError(f"{section} must be a [section]")
-    table = {}
+    scene_keys = SCHEMA["scene"]
+    effects = checked("scene.effects", scene_keys["effects"], raw.get("scene", {}).get("effects", scene_keys["effects"].default))
+    table: dict[str, dict[str, Any]] = {}
+    warnings: list[str] = []
     for section, keys in SCHEMA.items():
         given = raw.get(section, {})
         for key in given:
             if key not in keys:
                 raise SceneError(f"unknown key {section}.{key}")
-        table[section] = {
-            key: checked(f"{section}.{key}", spec, given.get(key, spec.default))
-            for key, spec in keys.items()
-        }
-    return table
+        table[section] = {}
+        for key, spec in keys.items():
+            effect = effect_of(section, key)
+            if effect is not None and effect not in effects:
+                # Data of an effect that is off: not required, and never used.
+                if key in given:
+                    warnings.append(f"{section}.{key} is ignored: effect {effect!r} is off")
+                continue
+            table[section][key] = checked(f"{section}.{key}", spec, given.get(key, spec.default))
+    return table, tuple(warnings)
 
 
 def checked(name: str, spec: Key, value: Any) -> Any:

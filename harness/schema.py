@@ -69,12 +69,62 @@ def safe_name(v: str) -> str | None:
 
 _ROLE = one_of(*ROLE_LABELS)
 
+# Effects a scene can switch on (elasticity is always on), each with its prerequisites.
+EFFECTS: dict[str, tuple[str, ...]] = {
+    "piezoelectric": (),
+    "thermal": (),
+    "pyroelectric": ("piezoelectric", "thermal"),
+    "contact": (),
+    "friction": ("contact",),
+    "electric_contact": ("piezoelectric", "contact"),
+    "thermal_contact": ("thermal", "contact"),
+}
+
+# Case-file data that only matter when an effect is on: a whole section, or one key.
+DATA_EFFECT: dict[tuple[str, str | None], str] = {
+    ("contact", None): "contact",
+    ("contact", "S"): "friction",
+    ("electric_contact", None): "electric_contact",
+    ("thermal_contact", None): "thermal_contact",
+    ("loads", "surface_charge"): "piezoelectric",
+    ("loads", "charge_density"): "piezoelectric",
+    ("loads", "heat_source"): "thermal",
+}
+
+
+def effect_of(section: str, key: str) -> str | None:
+    """The effect a case-file value belongs to (None: always used)."""
+    return DATA_EFFECT.get((section, key)) or DATA_EFFECT.get((section, None))
+
+
+def effect_list(v: list) -> str | None:
+    valid = ", ".join(EFFECTS)
+    if not all(isinstance(e, str) for e in v):
+        return f"must be a list of effect names ({valid})"
+    unknown = [e for e in v if e not in EFFECTS]
+    if unknown:
+        return f"has unknown effect {unknown[0]!r}; valid effects: {valid}"
+    if len(set(v)) != len(v):
+        return "names an effect twice"
+    for effect in v:
+        missing = [p for p in EFFECTS[effect] if p not in v]
+        if missing:
+            return f"turns on {effect!r}, which needs {' and '.join(repr(m) for m in missing)} on too"
+    return None
+
 SCHEMA: dict[str, dict[str, Key]] = {
     "scene": {
         "name": Key(str, check=safe_name),
         "description": Key(str, ""),
         "material": Key(str, check=safe_name),
-        "initial_guess": Key(str, "zero", one_of("zero", "pressed")),
+        "effects": Key(list, list(EFFECTS), effect_list),
+        # zero | pressed: Newton's start on every level; coarser: each level starts from
+        # the solution of the next coarser level (the coarsest from `coarsest_guess`),
+        # which keeps a study on one solution branch; file: from initial_mesh/initial_state.
+        "initial_guess": Key(str, "coarser", one_of("zero", "pressed", "coarser", "file")),
+        "coarsest_guess": Key(str, "zero", one_of("zero", "pressed")),
+        "initial_mesh": Key(str, ""),
+        "initial_state": Key(str, ""),
     },
     "geometry": {
         "kind": Key(str, check=one_of("rectangle")),
@@ -87,7 +137,7 @@ SCHEMA: dict[str, dict[str, Key]] = {
         "diagonals": Key(str, "SW-NE", one_of("SW-NE", "NW-SE")),
     },
     "loads": {
-        name: Key(float)
+        name: Key(float, 0.0)
         for name in (
             "traction_x", "traction_y", "surface_charge", "body_force_x",
             "body_force_y", "charge_density", "heat_source",
@@ -119,3 +169,7 @@ SCHEMA: dict[str, dict[str, Key]] = {
         "slope_band": Key(list, check=increasing_pair),
     },
 }
+
+# A manufactured solution (harness/mms.py): exact u1, u2 [m], phi [V], theta [K] as sympy
+# expressions in x, y. All blank (the default): an ordinary run with the case's [loads].
+SCHEMA["manufactured"] = {name: Key(str, "") for name in ("u1", "u2", "phi", "theta")}

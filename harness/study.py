@@ -19,7 +19,7 @@ from harness.layout import Layout
 from harness.mesh import build_mesh
 from harness.norms import error_norms
 from harness.rates import fitted_slope, pairwise_orders
-from harness.run import RunResult, check_solver_files, run_level
+from harness.run import RunResult, WarmStart, check_solver_files, run_level
 from harness.scene import Scene
 
 # Fields the error measure knows, in the order PROBLEM.md sums them (V, W, Q).
@@ -84,6 +84,8 @@ def run_all(
     force: bool,
     progress: Callable[[str], None],
 ) -> dict[int, RunResult]:
+    if scene.initial_guess == "coarser":
+        return run_chain(scene, meshes, layout, force, progress)
     runs: dict[int, RunResult] = {}
     failures: list[str] = []
     with ThreadPoolExecutor(max_workers=max(1, jobs)) as pool:
@@ -104,6 +106,27 @@ def run_all(
     if failures:
         more = f" (+{len(failures) - 1} more failed levels)" if len(failures) > 1 else ""
         raise RunError(failures[0] + more)
+    return runs
+
+
+def run_chain(
+    scene: Scene,
+    meshes: dict[int, Path],
+    layout: Layout,
+    force: bool,
+    progress: Callable[[str], None],
+) -> dict[int, RunResult]:
+    """Coarsest first, each level started from the one below it: one branch, few iterations."""
+    runs: dict[int, RunResult] = {}
+    warm: WarmStart | None = None
+    for count, n in enumerate(sorted(meshes), start=1):
+        try:
+            runs[n] = run_level(scene, meshes[n], n, layout, force, warm)
+        except RunError:
+            progress(f"[{count}/{len(meshes)}] n={n} FAILED")
+            raise
+        progress(f"[{count}/{len(meshes)}] n={n} {describe(runs[n])}")
+        warm = WarmStart(meshes[n], runs[n].directory / "state.txt")
     return runs
 
 

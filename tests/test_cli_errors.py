@@ -86,7 +86,9 @@ def test_solve_passes_the_scene_to_freefem_and_summarises_run_json(capsys, stub_
     assert record["contact_force"] == -12.5 and record["active_length"] == 1e300
     assert record["wall_s"] > 0
     main_edp = (stub_layout.level_dir("paper", 4) / "main.edp").read_text().splitlines()
-    assert len(main_edp) == 2 and main_edp[1].endswith('stub_freefem/scheme.idp"')
+    # One macro per effect of the scene, then the material and the scheme.
+    assert "macro effElectricContact 1 //" in main_edp
+    assert main_edp[-1].endswith('stub_freefem/scheme.idp"')
 
 
 @pytest.mark.parametrize(

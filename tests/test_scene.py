@@ -42,7 +42,7 @@ def test_optional_keys_take_their_defaults(paper_case, tmp_path):
     case = edited(paper_case, tmp_path, "[run]\ntimeout_s = 600\n", "")
     case = edited(case, tmp_path, 'initial_guess = "zero"', "")
     scene = load_scene(case)
-    assert scene.timeout_s == 600.0 and scene.initial_guess == "zero"
+    assert scene.timeout_s == 600.0 and scene.initial_guess == "coarser"
 
 
 @pytest.mark.parametrize(

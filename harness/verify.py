@@ -1,0 +1,181 @@
+"""`python -m harness.verify`: verification beyond self-convergence (issue 6), into
+results/verification/.
+
+- Manufactured solutions (cases/mms/*.toml, harness/mms.py): true errors against the exact
+  fields, per case, field and norm, with least-squares slopes and standard errors
+  (mms_levels.csv, mms.csv, mms.png). Expected: 2 in L2, 1 in the H1 seminorm.
+- The paper's scene without a reference: three-grid observed order, Richardson value and
+  GCI (harness/gci.py) of each field's error norm and of scalar outputs of run.json
+  (results/paper/gci.csv; its finest triples again in gci.csv here).
+"""
+
+from __future__ import annotations
+
+import argparse
+import math
+import sys
+from pathlib import Path
+from typing import Callable, Sequence
+
+import pandas as pd
+from matplotlib.figure import Figure
+
+from harness.errors import HarnessError, RunError
+from harness.freefem import freefem_version
+from harness.gci import three_grid
+from harness.layout import REPO, Layout
+from harness.mesh import build_mesh
+from harness.rates import slope_fit
+from harness.run import check_solver_files
+from harness.scene import Scene, load_scene
+from harness.study import run_all, run_study, stderr_line
+
+MMS_CASES = {"bulk": REPO / "cases" / "mms" / "bulk.toml", "contact": REPO / "cases" / "mms" / "contact.toml"}
+MMS_LEVELS = (4, 8, 16, 32)
+EXPECTED = {"L2": 2.0, "H1": 1.0}  # P1 on a smooth solution
+GCI_OUTPUTS = ("contact_force", "max_abs_u", "max_theta", "heat_in_contact", "active_length")
+
+
+def mms_errors(scene: Scene, levels: Sequence[int], layout: Layout, jobs: int = 2, force: bool = False,
+               progress: Callable[[str], None] = stderr_line) -> pd.DataFrame:
+    """One row per level, field and norm: the error FreeFEM measured against the exact field,
+    and the exact field's own norm (run.json's mms_errors, mms_norms)."""
+    if not scene.manufactured:
+        raise RunError(f"{scene.source} has no [manufactured] solution")
+    check_solver_files(scene, layout)
+    freefem_version()
+    meshes = {n: build_mesh(scene.geometry, n, layout.meshes_dir(scene.name)).path for n in sorted(set(levels))}
+    runs = run_all(scene, meshes, layout, jobs, force, progress)
+    rows = []
+    for n, run in sorted(runs.items()):
+        errors, norms = run.record.get("mms_errors"), run.record.get("mms_norms")
+        if not isinstance(errors, dict) or not isinstance(norms, dict):
+            raise RunError(f"{run.directory}/run.json has no mms_errors/mms_norms: the scheme did not "
+                           "run the manufactured solution (freefem/mms.idp, IFMACRO(MMS))")
+        for field in scene.fields:
+            for norm in EXPECTED:
+                rows.append({"n": n, "h": 1.0 / n, "field": field, "norm": norm,
+                             "error": float(errors[field][norm]), "exact_norm": float(norms[field][norm]),
+                             "newton_iterations": run.record.get("newton_iterations")})
+    table = pd.DataFrame(rows)
+    table["relative_error"] = table["error"] / table["exact_norm"]
+    return table
+
+
+def mms_rates(errors: pd.DataFrame) -> pd.DataFrame:
+    """One row per (case, field, norm): the fitted slope and its standard error over all
+    levels, the last pairwise order, and the finest level's error."""
+    rows = []
+    for (case, field, norm), group in errors.groupby(["case", "field", "norm"], sort=False):
+        group = group.sort_values("h", ascending=False)
+        fit = slope_fit(group["h"], group["error"])
+        e, h = group["error"].to_numpy(), group["h"].to_numpy()
+        last_order = math.log(e[-2] / e[-1]) / math.log(h[-2] / h[-1]) if len(e) > 1 else math.nan
+        rows.append({
+            "case": case, "field": field, "norm": norm, "expected": EXPECTED[norm],
+            "slope": fit.slope, "slope_stderr": fit.stderr, "last_pair_order": last_order,
+            "n_finest": int(group["n"].iloc[-1]), "err_finest": e[-1],
+            "rel_err_finest": group["relative_error"].iloc[-1], "levels": len(e),
+        })
+    return pd.DataFrame(rows)
+
+
+def plot_mms(errors: pd.DataFrame, rates: pd.DataFrame, target: Path) -> None:
+    cases = list(dict.fromkeys(errors["case"]))
+    fig = Figure(figsize=(5.2 * len(cases), 4.6))
+    axes = fig.subplots(1, len(cases), squeeze=False)[0]
+    for ax, case in zip(axes, cases):
+        for (field, norm), group in errors[errors["case"] == case].groupby(["field", "norm"], sort=False):
+            rate = rates[(rates["case"] == case) & (rates["field"] == field) & (rates["norm"] == norm)].iloc[0]
+            style = "-o" if norm == "L2" else "--s"
+            ax.loglog(group["h"], group["relative_error"], style, markersize=4,
+                      label=f"{field} {norm}: {rate['slope']:.2f} ± {rate['slope_stderr']:.2f}")
+        ax.set_title(f"manufactured solution: {case}")
+        ax.set_xlabel("h")
+        ax.set_ylabel("error / norm of the exact field")
+        ax.grid(True, which="both", alpha=0.3)
+        ax.legend(fontsize=7)
+    fig.tight_layout()
+    fig.savefig(target, format="png", dpi=120)
+
+
+def gci_table(errors: pd.DataFrame, records: dict[int, dict]) -> pd.DataFrame:
+    """Every consecutive triple of levels, for each field's error norm (`errors`: a study's
+    table, n and err_<field>, blank at the reference) and each scalar output of the runs'
+    run.json (`records`, by level)."""
+    series: dict[str, dict[int, float]] = {}
+    for column in (c for c in errors.columns if c.startswith("err_") and c != "err_total"):
+        graded = errors[errors[column].notna()]
+        series[column] = dict(zip(graded["n"].astype(int), graded[column].astype(float)))
+    for name in GCI_OUTPUTS:
+        values = {n: record.get(name) for n, record in records.items()}
+        if values and all(isinstance(v, (int, float)) and not isinstance(v, bool) for v in values.values()):
+            series[name] = {n: float(v) for n, v in values.items()}
+    rows = []
+    for quantity, values in series.items():
+        levels = sorted(values)
+        for coarse, middle, fine in zip(levels, levels[1:], levels[2:]):
+            result = three_grid((1 / fine, 1 / middle, 1 / coarse), (values[fine], values[middle], values[coarse]))
+            rows.append({"quantity": quantity, "n_fine": fine, "n_medium": middle, "n_coarse": coarse,
+                         **result.row()})
+    return pd.DataFrame(rows)
+
+
+def finest_triples(table: pd.DataFrame) -> pd.DataFrame:
+    return table.loc[table.groupby("quantity", sort=False)["n_fine"].idxmax()].reset_index(drop=True)
+
+
+def write_csv(table: pd.DataFrame, path: Path) -> None:
+    path.parent.mkdir(parents=True, exist_ok=True)
+    tmp = path.with_name(f".{path.name}.tmp")
+    tmp.write_text(table.to_csv(index=False, float_format="%.10g"))
+    tmp.replace(path)
+
+
+def parser() -> argparse.ArgumentParser:
+    p = argparse.ArgumentParser(prog="python -m harness.verify", description=__doc__,
+                                formatter_class=argparse.RawDescriptionHelpFormatter)
+    p.add_argument("--levels", default=",".join(map(str, MMS_LEVELS)), help="MMS levels n = 1/h")
+    p.add_argument("--cases", default=",".join(MMS_CASES), help="manufactured cases to run (bulk, contact)")
+    p.add_argument("--paper", type=Path, default=REPO / "cases" / "paper.toml", help="scene of the GCI table")
+    p.add_argument("--skip-gci", action="store_true", help="manufactured solutions only")
+    p.add_argument("--jobs", type=int, default=2, help="parallel runs")
+    p.add_argument("--force", action="store_true", help="rerun even if inputs are unchanged")
+    p.add_argument("--results", type=Path, default=Layout().results, help="results root")
+    p.add_argument("--freefem", type=Path, default=Layout().freefem, help="solver scripts")
+    return p
+
+
+def main(argv: Sequence[str] | None = None) -> int:
+    args = parser().parse_args(argv)
+    layout = Layout(results=args.results, freefem=args.freefem)
+    out = layout.results / "verification"
+    levels = tuple(int(n) for n in args.levels.split(","))
+    try:
+        tables = []
+        for case in args.cases.split(","):
+            table = mms_errors(load_scene(MMS_CASES[case]), levels, layout, args.jobs, args.force)
+            tables.append(table.assign(case=case))
+        errors = pd.concat(tables, ignore_index=True)
+        rates = mms_rates(errors)
+        write_csv(errors[["case", *errors.columns.drop("case")]], out / "mms_levels.csv")
+        write_csv(rates, out / "mms.csv")
+        plot_mms(errors, rates, out / "mms.png")
+        print(rates.to_string(index=False, float_format=lambda v: f"{v:.4g}"))
+        if not args.skip_gci:
+            scene = load_scene(args.paper)
+            study = run_study(scene, scene.levels, layout, args.jobs, args.force)
+            gci = gci_table(study.table, {n: run.record for n, run in study.runs.items()})
+            write_csv(gci, layout.case_dir(scene.name) / "gci.csv")
+            summary = finest_triples(gci).assign(case=scene.name)
+            write_csv(summary[["case", *summary.columns.drop("case")]], out / "gci.csv")
+            columns = ["quantity", "n_fine", "p", "f1", "f_ext", "gci_fine", "asymptotic_ratio", "behaviour"]
+            print(summary[columns].to_string(index=False, float_format=lambda v: f"{v:.4g}"))
+    except (HarnessError, KeyError) as exc:
+        print(f"error: {exc}", file=sys.stderr)
+        return 2
+    return 0
+
+
+if __name__ == "__main__":
+    sys.exit(main())

@@ -1,0 +1,193 @@
+"""Materials (issue 7): each file in freefem/materials/ is a full 3D set that runs the paper's
+scene; freefem/material.idp derives the plane-strain constants from it and stops a bad set
+before the solve with one line naming the material, the tensor and the offending value;
+a copy of the template is picked up by name."""
+
+from __future__ import annotations
+
+import json
+import re
+import shutil
+from pathlib import Path
+
+import pytest
+
+from harness.cli import main
+from harness.freefem import command, invoke
+
+ROOT = Path(__file__).parents[1]
+FREEFEM = ROOT / "freefem"
+PAPER = ROOT / "tests" / "data" / "paper.toml"
+TEMPLATE = FREEFEM / "materials" / "TEMPLATE.idp.txt"
+MATERIALS = sorted(p.stem for p in (FREEFEM / "materials").glob("*.idp"))
+INVALID_MATERIAL = 14  # material.idp's exit code (harness/freefem.py EXIT_REASONS)
+
+# Ouafik (2019) section 4.2, as the scheme used them before materials carried 3D sets.
+PAPER_BATIO3 = dict(
+    f11=166e9, f13=78e9, f33=162e9, f44=43e9, e31=-4.4, e33=18.6, e15=11.6,
+    b11=11.2e-9, b33=12.6e-9, m11=2.24e6, m33=1.89e6, p1=0.0, p3=-1e-4, k11=50.0, k33=75.0,
+)
+
+
+def reduce(material: Path, tmp: Path) -> tuple[int, str, dict[str, float]]:
+    """Run material.idp alone on a material file: exit code, output, the 2D constants."""
+    script = tmp / "reduce.edp"
+    prints = "".join(f'cout << "{name} " << {name} << endl;\n' for name in PAPER_BATIO3)
+    script.write_text(f'include "{material.resolve()}"\ninclude "{(FREEFEM / "material.idp").resolve()}"\n'
+                      f"cout.precision(17);\n{prints}")
+    outcome = invoke(command(script, []), tmp, timeout_s=60)
+    out = (tmp / "stdout.txt").read_text() + (tmp / "stderr.txt").read_text()
+    printed = dict(line.split(" ", 1) for line in out.splitlines() if line.split(" ")[0] in PAPER_BATIO3)
+    return outcome.returncode, out, {name: float(value) for name, value in printed.items()}
+
+
+def solve(tmp: Path, material: str, freefem: Path = FREEFEM) -> tuple[int, Path]:
+    """`python -m harness solve` of the paper's scene at n = 4 with `material`: exit code, run dir."""
+    name = f"paper-{material}"
+    code = main(["solve", str(PAPER), "--n", "4", "--results", str(tmp), "--freefem", str(freefem),
+                 "--set", f"scene.material={material}", "--set", f"scene.name={name}"])
+    return code, tmp / name / "n4"
+
+
+@pytest.fixture(scope="module")
+def runs(tmp_path_factory):
+    """run.json of each repository material on the paper's scene, solved once per module."""
+    results = tmp_path_factory.mktemp("materials")
+    cache: dict[str, dict] = {}
+
+    def record(material: str) -> dict:
+        if material not in cache:
+            code, directory = solve(results, material)
+            assert code == 0, f"{material}: the paper's scene failed (see {directory}.failed)"
+            cache[material] = json.loads((directory / "run.json").read_text())
+        return cache[material]
+
+    return record
+
+
+def freefem_copy(tmp: Path) -> Path:
+    """A private copy of freefem/, so a test can add materials the way a user would."""
+    tree = tmp / "freefem"
+    shutil.copytree(FREEFEM, tree)
+    return tree
+
+
+def variant(tmp: Path, name: str, *edits: tuple[str, str], drop: str = "") -> Path:
+    """BaTiO3.idp under another name, with text replacements and optionally one macro removed."""
+    text = (FREEFEM / "materials" / "BaTiO3.idp").read_text().replace('"BaTiO3"', f'"{name}"')
+    for old, new in edits:
+        assert old in text, old
+        text = text.replace(old, new)
+    if drop:
+        text = re.sub(rf"^macro {drop} .*?//\n", "", text, flags=re.MULTILINE | re.DOTALL)
+        assert f"macro {drop} " not in text
+    path = tmp / f"{name}.idp"
+    path.write_text(text)
+    return path
+
+
+def test_the_library_has_batio3_and_at_least_three_more():
+    assert "BaTiO3" in MATERIALS and len(MATERIALS) >= 4, MATERIALS
+
+
+def test_batio3_reduces_exactly_to_the_papers_constants(tmp_path):
+    # Exact: the plane-strain reduction only picks entries of the 3D set, no arithmetic.
+    code, out, constants = reduce(FREEFEM / "materials" / "BaTiO3.idp", tmp_path)
+    assert code == 0, out
+    assert constants == PAPER_BATIO3
+
+
+@pytest.mark.parametrize("material", MATERIALS)
+def test_every_material_passes_the_checks(material, tmp_path):
+    code, out, constants = reduce(FREEFEM / "materials" / f"{material}.idp", tmp_path)
+    assert code == 0, out
+    assert set(constants) == set(PAPER_BATIO3)
+
+
+@pytest.mark.parametrize("material", MATERIALS)
+def test_every_material_runs_the_papers_scene_and_converges(material, runs):
+    record = runs(material)
+    assert record["converged"] is True
+    assert record["material"] == material  # materialName matches the file name
+
+
+@pytest.mark.parametrize("material", [m for m in MATERIALS if m != "BaTiO3"])
+def test_changing_the_material_changes_the_solution(material, runs):
+    # 1 %: the materials' moduli differ by tens of per cent, round-off by 1e-12.
+    paper, other = runs("BaTiO3"), runs(material)
+    changes = [abs(other[k] / paper[k] - 1) for k in ("max_abs_u", "min_phi")]
+    assert max(changes) > 0.01, changes
+
+
+BAD_MATERIALS = {
+    "not positive definite": (
+        [("[77e9, 166e9, 78e9,", "[170e9, 166e9, 78e9,"), ("[[166e9, 77e9,", "[[166e9, 170e9,")], "",
+        "elasticity C is not positive definite (Cholesky pivot 2 of 6 = "),
+    "missing constant": ([], "materialK", "conductivity k is missing (define macro materialK"),
+    "not symmetric": ([("[[166e9, 77e9,", "[[166e9, 76e9,")], "", "elasticity C is not symmetric (C12 = 7.6e+10, C21 = 7.7e+10)"),
+    "GPa for Pa": ([("[0, 0, 0, 0, 0, 44.5e9]", "[0, 0, 0, 0, 0, 44.5]")], "",
+                   "elasticity C is implausible, expected 1e+08 to 1e+13 Pa on the diagonal (C66 = 44.5)"),
+    "relative permittivity": ([("[0, 0, 12.6e-9]", "[0, 0, 1260]")], "", "permittivity beta is implausible"),
+    "wrong shape": ([("[0, 0, -1e-4]", "[0, -1e-4]")], "", "pyroelectric p must have 3 entries (it has 2)"),
+    "negative conductivity": ([("[0, 0, 75]]", "[0, 0, -75]]")], "", "conductivity k is implausible"),
+    "in-plane shear coupling": (
+        [("[0, 0, 0, 0, 43e9, 0],", "[1e9, 0, 0, 0, 43e9, 0],"), ("[[166e9, 77e9, 78e9, 0, 0, 0]", "[[166e9, 77e9, 78e9, 0, 1e9, 0]")],
+        "", "elasticity C has an in-plane coupling the plane-strain scheme does not model (C15 = 1e+09)"),
+    "m and alpha both": ([("macro materialP", "macro materialAlpha [1e-5, 1e-5, 1e-5, 0, 0, 0] //\nmacro materialP")], "",
+                         "stress-temperature m is given twice"),
+}
+
+
+@pytest.mark.parametrize("case", BAD_MATERIALS)
+def test_a_bad_material_is_one_line_naming_material_tensor_and_value(case, tmp_path):
+    edits, drop, message = BAD_MATERIALS[case]
+    code, out, _ = reduce(variant(tmp_path, "Bad", *edits, drop=drop), tmp_path)
+    assert code == INVALID_MATERIAL, out
+    errors = [line for line in out.splitlines() if line.startswith("error:")]
+    assert len(errors) == 1 and errors[0].startswith("error: material Bad: " + message), out
+
+
+@pytest.mark.parametrize("case", ["not positive definite", "missing constant"])
+def test_the_harness_stops_a_bad_material_before_solving(case, tmp_path, capsys):
+    tree = freefem_copy(tmp_path)
+    edits, drop, message = BAD_MATERIALS[case]
+    variant(tree / "materials", "Bad", *edits, drop=drop)
+    code, directory = solve(tmp_path / "results", "Bad", tree)
+    err = capsys.readouterr().err.strip().splitlines()
+    assert code != 0
+    assert len(err) == 1 and "invalid material" in err[0] and "error: material Bad: " + message in err[0], err
+    failed = directory.with_name("n4.failed")
+    assert not (failed / "run.json").exists() and not (failed / "solution.vtu").exists()
+
+
+def test_thermal_expansion_gives_m_equal_to_c_alpha(tmp_path):
+    a1, a3 = 4e-6, 2e-6  # [1/K]
+    material = variant(tmp_path, "Expanding", ("macro materialM [2.24e6, 2.24e6, 1.89e6, 0, 0, 0] //",
+                                               f"macro materialAlpha [{a1}, {a1}, {a3}, 0, 0, 0] //"))
+    code, out, c = reduce(material, tmp_path)
+    assert code == 0, out
+    # m = C alpha in Voigt form; C12 = 77 GPa is BaTiO3's. 1e-14: three products summed.
+    assert c["m11"] == pytest.approx((c["f11"] + 77e9) * a1 + c["f13"] * a3, rel=1e-14)
+    assert c["m33"] == pytest.approx(2 * c["f13"] * a1 + c["f33"] * a3, rel=1e-14)
+
+
+def test_a_copy_of_the_template_is_picked_up_by_name(tmp_path, capsys):
+    tree = freefem_copy(tmp_path)
+    # What README.md tells a user: copy, name it, replace values.
+    text = TEMPLATE.read_text().replace('"MyMaterial"', '"MyCeramic"').replace("[78e9, 78e9, 162e9,", "[78e9, 78e9, 150e9,")
+    (tree / "materials" / "MyCeramic.idp").write_text(text)
+    code, directory = solve(tmp_path / "results", "MyCeramic", tree)
+    assert code == 0, capsys.readouterr().err
+    record = json.loads((directory / "run.json").read_text())
+    assert record["material"] == "MyCeramic" and record["converged"] is True
+
+
+def test_the_template_is_not_a_material():
+    assert "TEMPLATE" not in MATERIALS and TEMPLATE.is_file()
+
+
+def test_an_unknown_material_lists_the_available_ones(tmp_path, capsys):
+    code, _ = solve(tmp_path, "Unobtainium")
+    err = capsys.readouterr().err.strip().splitlines()
+    assert code == 2 and len(err) == 1
+    assert "unknown material 'Unobtainium'" in err[0] and "available: " + ", ".join(MATERIALS) in err[0], err
