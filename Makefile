@@ -5,10 +5,15 @@ VENV := .venv
 PY := $(VENV)/bin/python
 STAMP := $(VENV)/.installed
 
-.PHONY: convergence test baseline freefem clean-runs
+.PHONY: convergence scenes test baseline freefem clean-runs
 
 convergence: $(STAMP) freefem
 	$(PY) -m harness convergence cases/paper.toml
+
+# A convergence study of every scene in cases/ and one table of their unknowns, dofs,
+# times and slopes (results/scenes/summary.csv).
+scenes: $(STAMP) freefem
+	$(PY) -m harness.scenes
 
 test: $(STAMP) freefem
 	$(PY) -m pytest -q
