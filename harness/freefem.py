@@ -29,7 +29,7 @@ EXIT_REASONS = {
     6: "FreeFEM assertion failed",
     7: "FreeFEM internal error",
     8: "FreeFEM execution error",  # ErrorExec carries the UNKNOWN code in FreeFEM 4.9
-    10: "Newton diverged (growing residual)",
+    10: "Newton diverged: no decrease of the residual in 5 steps (no solution near this start? try scene.coarsest_guess = pressed)",
     11: "NaN/Inf in Newton",
     12: "Newton hit its maximum number of iterations",
     14: "invalid material",  # freefem/material.idp; its `error: material ...` line follows
