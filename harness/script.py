@@ -29,7 +29,8 @@ def main_script(
     lines += [f"macro {effect_macro(e)} 1 //" for e in effects]
     lines.append(f"macro ELEMENT {element} //")
     for name, body in (macros or {}).items():
-        lines.append(f"macro {name} ({body}) //")
+        # "NAME (body)" would read as a macro with parameters; "NAME() (body)" is used bare.
+        lines.append(f"macro {name}() ({body}) //")
     # FreeFEM's include takes a literal file name; nested includes resolve next to the includer.
     includes: list[Path] = [layout.material_file(material)]
     if layout.material_reduction_file().is_file():
