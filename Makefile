@@ -32,7 +32,7 @@ $(STAMP): pyproject.toml
 # Per-level run folders (good, failed, half-swapped) and meshes; not the committed
 # CSV/JSON/PNG baseline.
 clean-runs:
-	find results -mindepth 2 -maxdepth 2 -type d \( -name 'n[0-9]*' -o -name meshes -o -name '.tmp-*' -o -name '.old-*' \) -exec rm -rf {} +
+	find results -mindepth 2 -maxdepth 3 -type d \( -name 'n[0-9]*' -o -name meshes -o -name '.tmp-*' -o -name '.old-*' \) -exec rm -rf {} +
 
 # Verification beyond self-convergence (issue 6): true errors of the manufactured cases
 # (cases/mms/, h = 1/4 ... 1/32) and the three-grid GCI of the paper's scene (its runs are
@@ -40,3 +40,30 @@ clean-runs:
 .PHONY: verify
 verify: $(STAMP) freefem
 	$(PY) -m harness.verify --levels 4,8,16,32
+
+# The stress suite (issue 4): every case of cases/hard/ on its levels, each converged or
+# failing with a classified reason, with the physical checks, into results/stress/
+# (summary.csv, summary.md), and the paper scene's Newton iterations per level
+# (paper_iterations.csv). Exits 1 on an unexpected failure or a failed check.
+.PHONY: stress branches
+stress: $(STAMP) freefem
+	$(PY) -m harness.stress
+
+# Both solution branches of the paper's scene, from zero and from the pressed start, each a
+# convergence study on levels 2 ... 64, into results/branches/ (branches.csv, branches.md).
+branches: $(STAMP) freefem
+	$(PY) -m harness.branches
+
+# What accuracy costs (issue 5): P1, P2 and P1 with a loose Newton tolerance against one
+# P2 reference (h = 1/128), the P1 chain on to h = 1/256 for time and memory against dofs,
+# into results/cost/ (cost.csv, fits.csv, frontier.md/.csv, scaling.csv, PNGs; ~10 min).
+# Cached runs keep their old timings: COST_FLAGS=--force reruns every level.
+# `make bench` repeats the timings that matter (finest level alone, the sweep, the CLI)
+# five times, medians and min-max, into results/bench/ (bench.csv, bench.md); it waits
+# (up to 20 min) for a 1-minute load below 1.2 first.
+.PHONY: cost bench
+cost: $(STAMP) freefem
+	$(PY) -m harness.cost cases/paper.toml $(COST_FLAGS)
+
+bench: $(STAMP) freefem
+	$(PY) -m harness.bench cases/paper.toml $(BENCH_FLAGS)

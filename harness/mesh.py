@@ -32,7 +32,8 @@ def mesh_path(directory: Path, n: int) -> Path:
 def build_mesh(geometry: Geometry, n: int, directory: Path) -> MeshSummary:
     """Write mesh_n<n>.msh into `directory` (only replacing it if the bytes change) and
     return its checked summary."""
-    cells = grid_cells(geometry, n)
+    unstructured = geometry.diagonals == "unstructured"
+    cells = {} if unstructured else grid_cells(geometry, n)
     directory.mkdir(parents=True, exist_ok=True)
     target = mesh_path(directory, n)
     tmp = sibling_temp(target).with_suffix(".msh")  # gmsh picks the format from the suffix
@@ -66,9 +67,14 @@ def write_with_gmsh(geometry: Geometry, cells: dict[float, int], n: int, target:
     try:
         gmsh.option.setNumber("General.Terminal", 0)
         gmsh.model.add("scene")
-        add_strips(geometry, cells)
-        gmsh.model.mesh.generate(2)
-        snap_to_lattice(n)
+        if cells:
+            add_strips(geometry, cells)
+            gmsh.model.mesh.generate(2)
+            snap_to_lattice(n)
+        else:
+            add_strips(geometry, cells, size=1.0 / n)
+            gmsh.model.mesh.generate(2)
+            distort(n)
         gmsh.option.setNumber("Mesh.MshFileVersion", 2.2)
         gmsh.write(str(target))
     except Exception as exc:  # gmsh raises a bare Exception with its own log text
@@ -77,12 +83,13 @@ def write_with_gmsh(geometry: Geometry, cells: dict[float, int], n: int, target:
         gmsh.finalize()
 
 
-def add_strips(geometry: Geometry, cells: dict[float, int]) -> None:
-    """One transfinite surface per vertical strip between consecutive breakpoints."""
+def add_strips(geometry: Geometry, cells: dict[float, int], size: float = 0.0) -> None:
+    """One transfinite surface per vertical strip between consecutive breakpoints; with no
+    `cells`, plain surfaces that gmsh meshes unstructured with triangles of about `size`."""
     geo = gmsh.model.geo
     xs, height = geometry.breakpoints(), geometry.height
-    low = [geo.addPoint(x, 0.0, 0.0) for x in xs]
-    high = [geo.addPoint(x, height, 0.0) for x in xs]
+    low = [geo.addPoint(x, 0.0, 0.0, size) for x in xs]
+    high = [geo.addPoint(x, height, 0.0, size) for x in xs]
     verticals = [geo.addLine(a, b) for a, b in zip(low, high)]
     roles: dict[str, list[int]] = {role: [] for role in ROLE_LABELS}
     roles[geometry.left].append(verticals[0])
@@ -94,17 +101,18 @@ def add_strips(geometry: Geometry, cells: dict[float, int]) -> None:
         # Counter-clockwise loop, so the triangles come out positively oriented.
         loop = geo.addCurveLoop([bottom, verticals[i + 1], top, -verticals[i]])
         surface = geo.addPlaneSurface([loop])
-        across = cells[xs[i + 1]] - cells[xs[i]] + 1
-        for line in (bottom, top):
-            geo.mesh.setTransfiniteCurve(line, across)
-        geo.mesh.setTransfiniteSurface(
-            surface, ARRANGEMENT[geometry.diagonals], [low[i], low[i + 1], high[i + 1], high[i]]
-        )
+        if cells:
+            across = cells[xs[i + 1]] - cells[xs[i]] + 1
+            for line in (bottom, top):
+                geo.mesh.setTransfiniteCurve(line, across)
+            geo.mesh.setTransfiniteSurface(
+                surface, ARRANGEMENT[geometry.diagonals], [low[i], low[i + 1], high[i + 1], high[i]]
+            )
         mid = 0.5 * (xs[i] + xs[i + 1])
         roles[role_at(geometry.bottom, mid)].append(bottom)
         roles[role_at(geometry.top, mid)].append(top)
         surfaces.append(surface)
-    for line in verticals:
+    for line in verticals if cells else ():
         geo.mesh.setTransfiniteCurve(line, cells[height] + 1)
     geo.synchronize()
     for role, curves in roles.items():
@@ -128,3 +136,28 @@ def snap_to_lattice(n: int) -> None:
         raise MeshError(f"n={n}: gmsh placed nodes off the h-lattice")
     for tag, point in zip(tags, snapped):
         gmsh.model.mesh.setNode(int(tag), point.tolist(), [])
+
+
+def distort(n: int, fraction: float = 0.3) -> None:
+    """Shift every interior node by a pseudo-random vector of up to `fraction` h per
+    coordinate (seeded by n: the same mesh every time); a node whose shift would invert a
+    triangle keeps its place. Boundary nodes stay, so the boundary roles are exact."""
+    tags, coords, _ = gmsh.model.mesh.getNodes()
+    xyz = coords.reshape(-1, 3).copy()
+    index = {int(t): i for i, t in enumerate(tags)}
+    inner, _, _ = gmsh.model.mesh.getNodes(2, -1, includeBoundary=False)
+    inner = np.array([index[int(t)] for t in inner], dtype=int)
+    _, node_tags = gmsh.model.mesh.getElementsByType(2)  # 3-node triangles
+    tri = np.array([index[int(t)] for t in node_tags], dtype=int).reshape(-1, 3)
+    moved = xyz.copy()
+    moved[inner, :2] += np.random.default_rng(n).uniform(-fraction, fraction, (len(inner), 2)) / n
+    while True:
+        a, b, c = (moved[tri[:, k], :2] for k in range(3))
+        area = (b[:, 0] - a[:, 0]) * (c[:, 1] - a[:, 1]) - (c[:, 0] - a[:, 0]) * (b[:, 1] - a[:, 1])
+        bad = np.unique(tri[area <= 0.05 / n**2])  # inverted or nearly flat: undo its nodes
+        bad = bad[np.isin(bad, inner) & (moved[bad] != xyz[bad]).any(axis=1)]
+        if not len(bad):
+            break
+        moved[bad] = xyz[bad]
+    for i in inner:
+        gmsh.model.mesh.setNode(int(tags[i]), moved[i].tolist(), [])

@@ -109,7 +109,7 @@ def solve_in(
     work: Path, scene: Scene, mesh: Path, n: int, layout: Layout, guess: str, start: WarmStart | None
 ) -> dict[str, Any]:
     script = work / "main.edp"
-    script.write_text(main_script(scene.material, scene.effects, layout, macros=scene_macros(scene, layout)))
+    script.write_text(main_script(scene.material, scene.effects, layout, element=scene.element, macros={**scene_macros(scene, layout), **scene.reference_macros()}))
     options = ["-mesh", str(mesh), "-out", str(work.resolve()), "-n", str(n)]
     options += freefem.scene_options(scene.solver_parameters(), guess)
     if start:

@@ -3,6 +3,7 @@
 from __future__ import annotations
 
 import copy
+import hashlib
 import math
 import tomllib
 from dataclasses import dataclass
@@ -42,6 +43,10 @@ class Scene:
         return ("u",) + ("phi",) * ("piezoelectric" in self.effects) + ("theta",) * ("thermal" in self.effects)
 
     @property
+    def element(self) -> str:
+        return self.table["scene"]["element"]
+
+    @property
     def initial_guess(self) -> str:
         return self.table["scene"]["initial_guess"]
 
@@ -69,8 +74,9 @@ class Scene:
         left out (FreeFEM never assembles their terms)."""
         on = set(self.effects)
         return {
-            s: {k: v for k, v in self.table[s].items() if effect_of(s, k) in (None, *on)}
-            for s in SOLVER_SECTIONS
+            **{s: {k: v for k, v in self.table[s].items() if effect_of(s, k) in (None, *on)}
+               for s in SOLVER_SECTIONS},
+            **({"reference": dict(self.table["reference"])} if self.reference_state else {}),
         }
 
     def run_inputs(self) -> dict[str, Any]:
@@ -79,11 +85,23 @@ class Scene:
         return {
             "material": self.material,
             "initial_guess": self.initial_guess,
+            "element": self.element,
             "effects": list(self.effects),
             "geometry": copy.deepcopy(self.table["geometry"]),
             **self.solver_parameters(),
             **({"manufactured": self.manufactured} if self.manufactured else {}),
+            **({"reference_sha256": sha256_file(self.reference_state)} if self.reference_state else {}),
         }
+
+    @property
+    def reference_state(self) -> str:
+        return self.table["reference"]["state"]
+
+    def reference_macros(self) -> dict[str, str]:
+        """REFERENCE switches on freefem/reference_error.idp when a reference state is set.
+        Its body is an identifier: main_script writes `macro NAME (body) //`, which FreeFEM
+        4.9 reads as a macro with parameters, and only an identifier parses there."""
+        return {"REFERENCE": "on"} if self.reference_state else {}
 
 
 def load_scene(path: Path, overrides: Iterable[str] = ()) -> Scene:
@@ -167,3 +185,10 @@ def coerced(name: str, kind: type, value: Any) -> Any:
     if type(value) is not kind:
         raise SceneError(f"{name} = {value!r} must be of type {kind.__name__}")
     return value
+
+
+def sha256_file(path: str) -> str:
+    try:
+        return hashlib.sha256(Path(path).read_bytes()).hexdigest()
+    except OSError:
+        raise SceneError(f"reference.state {path!r} is not a readable file") from None

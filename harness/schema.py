@@ -134,7 +134,9 @@ SCHEMA: dict[str, dict[str, Key]] = {
         "top": Key(list),
         "left": Key(str, check=_ROLE),
         "right": Key(str, check=_ROLE),
-        "diagonals": Key(str, "SW-NE", one_of("SW-NE", "NW-SE")),
+        # "unstructured": gmsh's Frontal-Delaunay triangles of size h with the interior
+        # nodes shifted at random by up to 0.3 h (a distorted, non-nested mesh; harness/mesh.py).
+        "diagonals": Key(str, "SW-NE", one_of("SW-NE", "NW-SE", "unstructured")),
     },
     "loads": {
         name: Key(float, 0.0)
@@ -173,3 +175,14 @@ SCHEMA: dict[str, dict[str, Key]] = {
 # A manufactured solution (harness/mms.py): exact u1, u2 [m], phi [V], theta [K] as sympy
 # expressions in x, y. All blank (the default): an ordinary run with the case's [loads].
 SCHEMA["manufactured"] = {name: Key(str, "") for name in ("u1", "u2", "phi", "theta")}
+
+# The finite element of every field (freefem/scheme.idp's ELEMENT macro), and a reference
+# run to measure errors against inside FreeFEM (freefem/reference_error.idp, issue 5): its
+# mesh and state.txt (paths) and its element, passed to FreeFEM as -reference.<key> when
+# a state is set (Scene.solver_parameters). A blank state: no reference errors.
+SCHEMA["scene"]["element"] = Key(str, "P1", one_of("P1", "P2"))
+SCHEMA["reference"] = {
+    "mesh": Key(str, ""),
+    "state": Key(str, ""),
+    "element": Key(str, "P1", one_of("P1", "P2")),
+}

@@ -1,0 +1,222 @@
+"""A benchmark, not a test (issue 5): each measurement several times, medians and spread.
+
+    python -m harness.bench cases/paper.toml [--repeats 5] [--levels 2,...,64]
+        [--max-load 1.2] [--wait-s 1200] [--results results/bench]
+
+Measurements, each repeated:
+  finest   the finest level alone, warm-started from the cached chain below it, as the
+           sweep runs it (FreeFEM wall time seen by the harness, and run.json's parts);
+  sweep    the whole convergence study (`make convergence`'s run_study: meshes, the chain
+           of runs, the error table), every level rerun, in a fresh results directory;
+  cli      `python -m harness convergence CASE --force` as a process: the sweep plus
+           Python's start-up, the report and the plot;
+  startup  FreeFEM running an empty script.
+Ratios per repetition: sweep / finest level within that sweep, and newton_over_linear of
+the finest level (run.json: Newton wall time over one bulk assembly plus one
+factorisation, same run). The GetFEM implementation of the same scheme took 11.6 s for
+the h = 1/64 level on this kind of machine (issue 5).
+
+Before starting, the benchmark waits (up to --wait-s) for the 1-minute load average to
+fall below --max-load, and records the load before and after: on a shared machine a
+number measured under load is a different number.
+"""
+
+from __future__ import annotations
+
+import argparse
+import json
+import os
+import platform
+import shutil
+import statistics
+import subprocess
+import sys
+import tempfile
+import time
+from pathlib import Path
+from typing import Any, Callable, Sequence
+
+import pandas as pd
+
+from harness import freefem
+from harness.cost import freefem_startup_s, jsonable, level_list, timed_meshes
+from harness.errors import HarnessError
+from harness.layout import REPO, Layout
+from harness.run import WarmStart, run_level
+from harness.scene import load_scene
+from harness.study import run_chain, run_study
+
+GETFEM_FINEST_S = 11.6  # issue 5: GetFEM + SuperLU, 5 Newton iterations, h = 1/64
+DEFAULT_RESULTS = REPO / "results" / "bench"
+FINEST_KEYS = ("wall_s", "total_s", "newton_s", "bulk_assembly_s", "first_factorisation_s", "factorisation_s",
+               "solve_s", "output_s", "newton_over_linear", "newton_iterations", "gmres_iterations", "peak_rss_mb")
+
+
+def wait_for_quiet(max_load: float, wait_s: float, say: Callable[[str], None]) -> float:
+    """Sleep until the 1-minute load average is below max_load (or wait_s has passed)."""
+    deadline = time.monotonic() + wait_s
+    load = os.getloadavg()[0]
+    while load >= max_load and time.monotonic() < deadline:
+        say(f"1-min load {load:.2f} >= {max_load}: waiting")
+        time.sleep(30)
+        load = os.getloadavg()[0]
+    return load
+
+
+def spread(values: Sequence[float]) -> dict[str, float]:
+    return {"median": statistics.median(values), "min": min(values), "max": max(values), "repeats": len(values)}
+
+
+def bench_finest(case: Path, overrides: Sequence[str], levels: Sequence[int], layout: Layout, repeats: int,
+                 say: Callable[[str], None]) -> list[dict[str, Any]]:
+    scene = load_scene(case, [*overrides, "scene.name=bench-finest"])
+    meshes, _ = timed_meshes(scene, levels, layout)
+    finest = max(levels)
+    below = {n: p for n, p in meshes.items() if n < finest}
+    runs = run_chain(scene, below, layout, False, lambda s: None) if below else {}
+    warm = WarmStart(meshes[max(below)], runs[max(below)].directory / "state.txt") if below else None
+    out = []
+    for i in range(repeats):
+        run = run_level(scene, meshes[finest], finest, layout, force=True, warm=warm)
+        out.append({k: run.record.get(k) for k in FINEST_KEYS})
+        say(f"finest n={finest} #{i + 1}: {run.record['wall_s']:.2f} s, "
+            f"newton_over_linear {run.record.get('newton_over_linear', float('nan')):.2f}")
+    return out
+
+
+def bench_sweep(case: Path, overrides: Sequence[str], levels: Sequence[int], repeats: int,
+                say: Callable[[str], None]) -> list[dict[str, Any]]:
+    out = []
+    scene = load_scene(case, [*overrides, "scene.name=bench-sweep"])
+    for i in range(repeats):
+        with tempfile.TemporaryDirectory(prefix="bench-sweep-") as tmp:
+            layout = Layout(results=Path(tmp))
+            study = run_study(scene, tuple(levels), layout, jobs=os.cpu_count() or 1, force=True,
+                              progress=lambda s: None)
+            finest = study.runs[max(levels)].record
+            out.append({"sweep_s": study.wall_s, "finest_in_sweep_s": finest["wall_s"],
+                        "sweep_over_finest": study.wall_s / finest["wall_s"],
+                        "runs_s": sum(r.record["wall_s"] for r in study.runs.values())})
+        say(f"sweep #{i + 1}: {out[-1]['sweep_s']:.2f} s, finest in it {out[-1]['finest_in_sweep_s']:.2f} s")
+    return out
+
+
+def bench_cli(case: Path, overrides: Sequence[str], levels: Sequence[int], repeats: int,
+              say: Callable[[str], None]) -> list[dict[str, Any]]:
+    out = []
+    for i in range(repeats):
+        with tempfile.TemporaryDirectory(prefix="bench-cli-") as tmp:
+            argv = [sys.executable, "-m", "harness", "convergence", str(case), "--force", "--results", tmp,
+                    "--levels", ",".join(map(str, levels))]
+            for item in overrides:
+                argv += ["--set", item]
+            start = time.perf_counter()
+            done = subprocess.run(argv, cwd=REPO, capture_output=True, text=True)
+            wall = time.perf_counter() - start
+        if done.returncode not in (0, 1):  # 1: out of the slope band, still a finished sweep
+            raise HarnessError(f"harness convergence failed: {done.stderr.strip()[-300:]}")
+        out.append({"cli_s": wall})
+        say(f"cli #{i + 1}: {wall:.2f} s")
+    return out
+
+
+def summarise(raw: dict[str, list[dict[str, Any]]]) -> pd.DataFrame:
+    rows = []
+    for measurement, samples in raw.items():
+        for key in samples[0]:
+            values = [float(s[key]) for s in samples if s.get(key) is not None]
+            if values:
+                rows.append({"measurement": measurement, "quantity": key, **spread(values)})
+    table = pd.DataFrame(rows)
+    finest = table[(table["measurement"] == "finest") & (table["quantity"] == "wall_s")]
+    if not finest.empty:
+        f = finest.iloc[0]
+        # The GetFEM time over ours: how many times faster (min-max from our max-min).
+        rows.append({"measurement": "finest", "quantity": "speedup_vs_getfem_11.6s",
+                     "median": GETFEM_FINEST_S / f["median"], "min": GETFEM_FINEST_S / f["max"],
+                     "max": GETFEM_FINEST_S / f["min"], "repeats": f["repeats"]})
+    return pd.DataFrame(rows)
+
+
+def markdown(table: pd.DataFrame, meta: dict[str, Any]) -> str:
+    lines = [
+        "# Benchmark (python -m harness.bench)",
+        "",
+        f"{meta['repeats']} repetitions each; 1-min load {meta['load_before']:.2f} before, "
+        f"{meta['load_after']:.2f} after; {meta['cpus']} CPUs ({meta['cpu']}); levels {meta['levels']}.",
+        "",
+        "| measurement | quantity | median | min | max |",
+        "|---|---|---|---|---|",
+    ]
+    for _, r in table.iterrows():
+        lines.append(f"| {r['measurement']} | {r['quantity']} | {r['median']:.4g} | {r['min']:.4g} | {r['max']:.4g} |")
+    return "\n".join(lines) + "\n"
+
+
+def cpu_name() -> str:
+    try:
+        for line in Path("/proc/cpuinfo").read_text().splitlines():
+            if line.startswith("model name"):
+                return line.split(":", 1)[1].strip()
+    except OSError:
+        pass
+    return platform.processor() or "unknown"
+
+
+def main(argv: Sequence[str] | None = None) -> int:
+    top = argparse.ArgumentParser(prog="python -m harness.bench", description=__doc__.splitlines()[0])
+    top.add_argument("case", type=Path)
+    top.add_argument("--levels", type=level_list, help="levels of the sweep (default: the case's)")
+    top.add_argument("--repeats", type=int, default=5)
+    top.add_argument("--only", default="startup,finest,sweep,cli", help="comma-separated measurements")
+    top.add_argument("--max-load", type=float, default=1.2, help="wait for a 1-min load below this")
+    top.add_argument("--wait-s", type=float, default=1200, help="at most this long")
+    top.add_argument("--set", dest="overrides", action="append", default=[], metavar="KEY=VALUE")
+    top.add_argument("--results", type=Path, default=DEFAULT_RESULTS)
+    args = top.parse_args(argv)
+
+    def say(text: str) -> None:
+        print(text, file=sys.stderr, flush=True)
+
+    try:
+        scene = load_scene(args.case, args.overrides)
+        levels = tuple(args.levels or scene.levels)
+        freefem.freefem_version()
+        layout = Layout(results=args.results / "runs")
+        wanted = [m.strip() for m in args.only.split(",") if m.strip()]
+        load_before = wait_for_quiet(args.max_load, args.wait_s, say)
+        say(f"1-min load {load_before:.2f}: starting")
+        raw: dict[str, list[dict[str, Any]]] = {}
+        if "startup" in wanted:
+            raw["startup"] = [{"freefem_empty_script_s": freefem_startup_s(1)} for _ in range(args.repeats)]
+        if "finest" in wanted:
+            raw["finest"] = bench_finest(args.case, args.overrides, levels, layout, args.repeats, say)
+        if "sweep" in wanted:
+            raw["sweep"] = bench_sweep(args.case, args.overrides, levels, args.repeats, say)
+        if "cli" in wanted:
+            raw["cli"] = bench_cli(args.case, args.overrides, levels, args.repeats, say)
+        load_after = os.getloadavg()[0]
+    except HarnessError as exc:
+        print(f"error: {exc}", file=sys.stderr)
+        return 2
+    table = summarise(raw)
+    if "sweep" in raw and "finest" in raw:
+        finest = statistics.median(s["wall_s"] for s in raw["finest"])
+        sweeps = [s["sweep_s"] / finest for s in raw["sweep"]]
+        table = pd.concat([table, pd.DataFrame([{"measurement": "sweep", "quantity": "sweep_over_finest_alone",
+                                                 **spread(sweeps)}])], ignore_index=True)
+    meta = {"repeats": args.repeats, "load_before": load_before, "load_after": load_after,
+            "cpus": os.cpu_count(), "cpu": cpu_name(), "levels": list(levels),
+            "freefem_version": freefem.freefem_version(), "getfem_finest_s": GETFEM_FINEST_S,
+            "date": time.strftime("%Y-%m-%d %H:%M:%S")}
+    args.results.mkdir(parents=True, exist_ok=True)
+    (args.results / "bench.csv").write_text(table.to_csv(index=False, float_format="%.6g"))
+    (args.results / "bench.md").write_text(markdown(table, meta))
+    (args.results / "bench.json").write_text(json.dumps(jsonable({"meta": meta, "raw": raw}), indent=2) + "\n")
+    shutil.rmtree(layout.case_dir("bench-sweep"), ignore_errors=True)
+    print(markdown(table, meta))
+    return 0
+
+
+if __name__ == "__main__":
+    sys.exit(main())

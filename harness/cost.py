@@ -1,0 +1,637 @@
+"""What accuracy costs in time (issue 5): the cost-accuracy frontier of a scene.
+
+    python -m harness.cost cases/paper.toml [--levels 2,4,...] [--reference P2:128]
+        [--discretisations P1,P2,P1-rtol] [--scaling-levels 128,256] [--set k=v]
+        [--results results/cost] [--force]
+
+Every discretisation runs as a chain (each level warm-started from the next coarser one,
+as `make convergence` does) and is measured against ONE reference for the scene, by
+default P2 on the finest mesh, so that the frontier compares like with like. The errors
+are computed inside FreeFEM (freefem/reference_error.idp, in the reference's element: a
+P2 run keeps its accuracy, which solution.vtu's P1 vertex values would hide).
+
+Outputs (results/cost/): cost.csv (one row per scene x discretisation x level), fits.csv
+(E ~ C h^p, T ~ D h^-q, M ~ G h^-r per discretisation and field), frontier.csv and
+frontier.md (to reach E <= tau: h, seconds, MB), scaling.csv, summary.json, and the plots
+cost_vs_time.png, cost_vs_dofs.png, time_split.png, scaling.png. The P1 chain goes on to
+--scaling-levels (default 128, 256) for time and memory against dofs; its errors there
+are not used (a level as fine as the reference, or finer, has no meaningful error).
+
+Costs. `wall_s` is the FreeFEM process's wall time minus the error measurement it did
+for this study (reference_s); `chain_s` adds up mesh_s + wall_s over the chain up to the
+level: what a user pays to get that level's solution from nothing. `peak_rss_mb` is the
+FreeFEM process's own high-water mark before the error measurement (VmHWM, read by
+reference_error.idp); the reference chain, which measures no error, reports the
+harness's wait4 value, which cannot be below the harness's own resident size at fork
+time (~0.15 GB: wait4's ru_maxrss counts the pages the child had before its exec).
+"""
+
+from __future__ import annotations
+
+import argparse
+import json
+import math
+import os
+import statistics
+import sys
+import tempfile
+import time
+from dataclasses import dataclass, field
+from pathlib import Path
+from typing import Any, Callable, Sequence
+
+import numpy as np
+import pandas as pd
+from matplotlib.figure import Figure
+
+from harness import freefem
+from harness.errors import HarnessError, RunError
+from harness.layout import REPO, Layout
+from harness.mesh import build_mesh
+from harness.rates import slope_fit
+from harness.run import RunResult, check_solver_files
+from harness.scene import Scene, load_scene
+from harness.study import run_chain, stderr_line
+
+FIELDS = ("u", "phi", "theta")
+ERROR_NAMES = (*FIELDS, "total")
+DEFAULT_RESULTS = REPO / "results" / "cost"
+# Relative accuracies of the frontier table: E <= tau_rel * ||reference||, per field.
+TAUS_REL = (1e-1, 3e-2, 1e-2, 3e-3, 1e-3)
+
+
+@dataclass(frozen=True)
+class Discretisation:
+    name: str
+    overrides: tuple[str, ...]
+    description: str
+
+
+DISCRETISATIONS = {
+    "P1": Discretisation("P1", ("scene.element=P1",), "P1 for all fields (the paper's)"),
+    "P2": Discretisation("P2", ("scene.element=P2",), "P2 for all fields"),
+    "P1-rtol": Discretisation(
+        "P1-rtol", ("scene.element=P1", "newton.rtol=1e-4"), "P1, Newton stopped at a relative increment of 1e-4"
+    ),
+}
+
+
+# ---------------------------------------------------------------- fits and the frontier
+
+
+@dataclass(frozen=True)
+class PowerLaw:
+    """y = coefficient * x^exponent, fitted in log-log by least squares."""
+
+    coefficient: float
+    exponent: float
+    points: int
+
+    def __call__(self, x: float) -> float:
+        return self.coefficient * x**self.exponent
+
+    def solve(self, y: float) -> float:
+        """The x where the law reaches y."""
+        return (y / self.coefficient) ** (1.0 / self.exponent)
+
+    @property
+    def valid(self) -> bool:
+        return math.isfinite(self.coefficient) and math.isfinite(self.exponent) and self.exponent != 0
+
+
+def power_fit(x: Sequence[float], y: Sequence[float]) -> PowerLaw:
+    """log y = log C + p log x over the points with positive finite y (NaN law if < 2)."""
+    xs, ys = np.asarray(x, dtype=float), np.asarray(y, dtype=float)
+    keep = np.isfinite(ys) & (ys > 0) & np.isfinite(xs) & (xs > 0)
+    if keep.sum() < 2:
+        return PowerLaw(math.nan, math.nan, int(keep.sum()))
+    fit = slope_fit(xs[keep], ys[keep])
+    return PowerLaw(math.exp(fit.intercept), fit.slope, fit.points)
+
+
+@dataclass(frozen=True)
+class Fits:
+    """E(h) = C h^p per error name, T(h) = D h^-q (chain seconds), M(h) = G h^-r (MB)."""
+
+    errors: dict[str, PowerLaw]
+    time: PowerLaw  # exponent is -q
+    memory: PowerLaw  # exponent is -r
+    h_range: tuple[float, float]  # the h of the error fits (extrapolation outside)
+
+    def h_for(self, name: str, tau: float) -> float:
+        law = self.errors[name]
+        return law.solve(tau) if law.valid and law.exponent > 0 else math.nan
+
+
+def fit_discretisation(rows: pd.DataFrame, error_levels: Sequence[int], cost_min_n: int) -> Fits:
+    """Error fits over `error_levels`, time and memory fits over those of them with
+    n >= cost_min_n (below that the fixed costs, start-up and the harness, dominate)."""
+    err = rows[rows["n"].isin(error_levels)]
+    cost = err[err["n"] >= cost_min_n]
+    if len(cost) < 2:
+        cost = rows.tail(2)
+    errors = {name: power_fit(err["h"], err[f"err_{name}"]) for name in ERROR_NAMES if f"err_{name}" in err}
+    h = err["h"].to_numpy(dtype=float)
+    return Fits(
+        errors=errors,
+        time=power_fit(cost["h"], cost["chain_s"]),
+        memory=power_fit(cost["h"], cost["peak_rss_mb"]),
+        h_range=(float(h.min()), float(h.max())) if len(h) else (math.nan, math.nan),
+    )
+
+
+def frontier_rows(
+    fits: dict[str, Fits], norms: dict[str, float], taus_rel: Sequence[float] = TAUS_REL
+) -> list[dict[str, Any]]:
+    """To reach E <= tau: h, level (the next power of two), predicted seconds and MB."""
+    out = []
+    for name in ERROR_NAMES:
+        if name not in norms:
+            continue
+        for tau_rel in taus_rel:
+            tau = tau_rel * norms[name]
+            for disc, fit in fits.items():
+                if name not in fit.errors:
+                    continue
+                h = fit.h_for(name, tau)
+                ok = math.isfinite(h) and h > 0
+                out.append({
+                    "field": name,
+                    "tau_rel": tau_rel,
+                    "tau": tau,
+                    "discretisation": disc,
+                    "h": h if ok else math.nan,
+                    "n_needed": 1.0 / h if ok else math.nan,
+                    "level": next_level(h) if ok else math.nan,
+                    "time_s": fit.time(h) if ok else math.nan,
+                    "memory_mb": fit.memory(h) if ok else math.nan,
+                    "extrapolated": bool(ok and not (fit.h_range[0] <= h <= fit.h_range[1])),
+                    "p": fit.errors[name].exponent,
+                    "q": -fit.time.exponent,
+                })
+    return out
+
+
+def next_level(h: float) -> int:
+    """The first power of two n with 1/n <= h (the level a nested study would run)."""
+    return 2 ** max(0, math.ceil(math.log2(1.0 / h) - 1e-9))
+
+
+def cheapest(frontier: pd.DataFrame) -> dict[str, dict[str, str]]:
+    """Per field and tau_rel, the discretisation with the smallest predicted time."""
+    out: dict[str, dict[str, str]] = {}
+    ok = frontier[np.isfinite(frontier["time_s"])]
+    for (name, tau_rel), group in ok.groupby(["field", "tau_rel"], sort=False):
+        best = group.loc[group["time_s"].idxmin()]
+        out.setdefault(name, {})[f"{tau_rel:g}"] = str(best["discretisation"])
+    return out
+
+
+# ---------------------------------------------------------------- running
+
+
+def timed_meshes(scene: Scene, levels: Sequence[int], layout: Layout) -> tuple[dict[int, Path], dict[int, float]]:
+    paths, seconds = {}, {}
+    for n in sorted(levels):
+        start = time.perf_counter()
+        paths[n] = build_mesh(scene.geometry, n, layout.meshes_dir(scene.name)).path
+        seconds[n] = time.perf_counter() - start
+    return paths, seconds
+
+
+def freefem_startup_s(repeats: int = 5) -> float:
+    """Median wall time of FreeFEM running an empty script, as the harness invokes it."""
+    times = []
+    with tempfile.TemporaryDirectory(prefix="ff-startup-") as tmp:
+        script = Path(tmp) / "empty.edp"
+        script.write_text("real nothing = 0;\n")
+        for _ in range(repeats):
+            outcome = freefem.invoke(freefem.command(script, []), Path(tmp), timeout_s=60)
+            if outcome.returncode != 0:
+                raise RunError(f"FreeFEM does not run an empty script (exit code {outcome.returncode})")
+            times.append(outcome.wall_s)
+    return statistics.median(times)
+
+
+@dataclass
+class CostStudy:
+    scene: str
+    reference: tuple[str, int]
+    table: pd.DataFrame
+    scaling: pd.DataFrame
+    startup_s: float
+    load_1min: float
+    norms: dict[str, float] = field(default_factory=dict)
+    fits: dict[str, Fits] = field(default_factory=dict)
+    frontier: pd.DataFrame = field(default_factory=pd.DataFrame)
+
+
+def row_of(
+    scene_name: str, disc: str, element: str, run: RunResult, mesh_s: float, startup_s: float,
+    finer_than_reference: bool = False,
+) -> dict[str, Any]:
+    r = run.record
+    reference_s = float(r.get("reference_s", 0.0))
+    errors = {} if finer_than_reference else r.get("reference_errors", {})
+    wall = float(r.get("wall_s", math.nan)) - reference_s
+    total = float(r.get("total_s", math.nan)) - reference_s
+    rss = r.get("peak_rss_before_reference_mb")
+    row = {
+        "scene": scene_name,
+        "discretisation": disc,
+        "element": element,
+        "n": run.n,
+        "h": 1.0 / run.n,
+        "dofs": r.get("dofs"),
+        "newton_iterations": r.get("newton_iterations"),
+        "factorisations": r.get("factorisations"),
+        "gmres_iterations": r.get("gmres_iterations"),
+        "mesh_s": mesh_s,
+        "startup_s": startup_s,
+        "bulk_assembly_s": r.get("bulk_assembly_s"),
+        "assembly_s": r.get("assembly_s"),
+        "factorisation_s": r.get("factorisation_s"),
+        "first_factorisation_s": r.get("first_factorisation_s"),
+        "solve_s": r.get("solve_s"),
+        "newton_s": r.get("newton_s"),
+        "output_s": r.get("output_s"),
+        "total_s": total,
+        "wall_s": wall,
+        "reference_s": reference_s,
+        "peak_rss_mb": float(rss) if rss is not None and float(rss) > 0 else r.get("peak_rss_mb"),
+        "rss_source": "freefem VmHWM" if rss is not None and float(rss) > 0 else "harness wait4",
+        "newton_over_linear": r.get("newton_over_linear"),
+        "reused": run.reused,
+    }
+    for name in FIELDS:
+        row[f"err_{name}"] = errors.get(name, math.nan)
+    row["err_total"] = sum(errors.get(f, 0.0) for f in FIELDS) if errors else math.nan
+    return row
+
+
+def add_chain_costs(table: pd.DataFrame) -> pd.DataFrame:
+    """chain_s: mesh + run wall time summed over the chain up to each level."""
+    table = table.sort_values(["discretisation", "n"]).reset_index(drop=True)
+    table["chain_s"] = (table["mesh_s"] + table["wall_s"]).groupby(table["discretisation"]).cumsum()
+    return table
+
+
+def run_cost(
+    case: Path,
+    levels: Sequence[int],
+    discretisations: Sequence[str],
+    reference: tuple[str, int],
+    scaling_levels: Sequence[int],
+    overrides: Sequence[str],
+    results: Path,
+    force: bool = False,
+    progress: Callable[[str], None] = stderr_line,
+) -> CostStudy:
+    layout = Layout(results=results / "runs")
+    base = load_scene(case, overrides)
+    check_solver_files(base, layout)
+    freefem.freefem_version()
+    load = os.getloadavg()[0]
+    startup = freefem_startup_s()
+    progress(f"FreeFEM start-up (empty script, median of 5): {startup:.3f} s; 1-min load {load:.2f}")
+    ref_element, ref_n = reference
+
+    # The reference: a chain in the reference's element up to ref_n, measuring nothing.
+    ref_scene = load_scene(case, [*overrides, f"scene.name={base.name}-reference", f"scene.element={ref_element}"])
+    ref_levels = sorted({n for n in levels if n < ref_n} | {ref_n})
+    progress(f"reference: {ref_element} at n = {ref_n} (chain {ref_levels})")
+    meshes, mesh_s = timed_meshes(ref_scene, ref_levels, layout)
+    ref_runs = run_chain(ref_scene, meshes, layout, force, progress)
+    ref_run = ref_runs[ref_n]
+    ref_options = [
+        f"reference.mesh={json.dumps(str(meshes[ref_n].resolve()))}",
+        f"reference.state={json.dumps(str((ref_run.directory / 'state.txt').resolve()))}",
+        f"reference.element={ref_element}",
+    ]
+    rows = [row_of(base.name, f"{ref_element} (reference)", ref_element, ref_runs[n], mesh_s[n], startup)
+            for n in ref_levels]
+
+    norms: dict[str, float] = {}
+    for name in discretisations:
+        disc = DISCRETISATIONS[name]
+        scene = load_scene(case, [*overrides, *disc.overrides, f"scene.name={base.name}-{name}", *ref_options])
+        # A level of the reference's own element and mesh would measure the reference against itself.
+        disc_levels = [n for n in levels if n <= ref_n and not (n == ref_n and scene.element == ref_element)]
+        if name == "P1":
+            disc_levels = sorted(set(disc_levels) | set(scaling_levels))
+        progress(f"{name}: {disc.description}, levels {disc_levels}")
+        meshes, mesh_s = timed_meshes(scene, disc_levels, layout)
+        runs = run_chain(scene, meshes, layout, force, progress)
+        rows += [row_of(base.name, name, scene.element, runs[n], mesh_s[n], startup, n > ref_n)
+                 for n in disc_levels]
+        norms = norms or reference_norms(runs[disc_levels[0]].record)
+
+    table = add_chain_costs(pd.DataFrame(rows))
+    scaling = table[table["discretisation"] == "P1"].reset_index(drop=True)
+    study = CostStudy(base.name, reference, table, scaling, startup, load, norms)
+    analyse(study, discretisations)
+    return study
+
+
+def reference_norms(record: dict[str, Any]) -> dict[str, float]:
+    norms = dict(record.get("reference_norms", {}))
+    if norms:
+        norms["total"] = sum(norms.values())
+    return norms
+
+
+def analyse(study: CostStudy, discretisations: Sequence[str], error_min_n: int = 8, cost_min_n: int = 16) -> None:
+    """Fits per discretisation and the frontier. The error fits use the levels 8 <= n <=
+    n_ref/2 (coarser ones are pre-asymptotic; the reference's own level is too close to
+    it) and, for the reference's own element, n <= n_ref/4 (the level next to the
+    reference carries the reference's own error). The time and memory fits use the same
+    levels from n = 16 on (below, start-up and the harness dominate)."""
+    ref_element, ref_n = study.reference
+    for name in discretisations:
+        rows = study.table[study.table["discretisation"] == name]
+        if rows.empty:
+            continue
+        element = rows["element"].iloc[0]
+        top = ref_n // 4 if element == ref_element else ref_n // 2
+        levels = [n for n in rows["n"] if error_min_n <= n <= top]
+        if len(levels) < 2:  # a short study: the last two levels that have errors
+            levels = list(rows[np.isfinite(rows["err_total"].astype(float))]["n"])[-2:]
+        study.fits[name] = fit_discretisation(rows, levels, cost_min_n)
+    study.frontier = pd.DataFrame(frontier_rows(study.fits, study.norms))
+
+
+# ---------------------------------------------------------------- reports
+
+
+def fits_table(study: CostStudy) -> pd.DataFrame:
+    rows = []
+    for disc, fit in study.fits.items():
+        for name, law in fit.errors.items():
+            rows.append({
+                "discretisation": disc, "field": name, "C": law.coefficient, "p": law.exponent,
+                "error_points": law.points, "h_min": fit.h_range[0], "h_max": fit.h_range[1],
+                "D": fit.time.coefficient, "q": -fit.time.exponent, "G": fit.memory.coefficient,
+                "r": -fit.memory.exponent,
+                # Time grows 10^(q/p) per digit of accuracy in this field.
+                "time_factor_per_digit": 10 ** (-fit.time.exponent / law.exponent) if law.valid else math.nan,
+            })
+    return pd.DataFrame(rows)
+
+
+def scaling_exponents(scaling: pd.DataFrame, min_n: int = 32) -> dict[str, float]:
+    """T ~ dofs^a and M ~ dofs^b over the levels n >= min_n."""
+    if scaling.empty:
+        return {}
+    big = scaling[scaling["n"] >= min_n]
+    return {
+        "time_vs_dofs": power_fit(big["dofs"], big["wall_s"]).exponent,
+        "memory_vs_dofs": power_fit(big["dofs"], big["peak_rss_mb"]).exponent,
+        "from_n": min_n,
+    }
+
+
+def frontier_markdown(study: CostStudy) -> str:
+    f = study.frontier
+    lines = [
+        f"# {study.scene}: what accuracy costs",
+        "",
+        f"Reference: {study.reference[0]} at h = 1/{study.reference[1]}. Fits E(h) = C h^p "
+        f"(levels n >= 8, and n <= n_ref/4 for the reference's element), T(h) = D h^-q "
+        f"(chain wall seconds, levels n >= 16), M(h) = G h^-r (peak MB). tau is relative to "
+        f"the reference's own seminorm of the field; `*` marks an extrapolation beyond the "
+        f"fitted levels.",
+        "",
+        "| discretisation | field | p | q | time x per digit |",
+        "|---|---|---|---|---|",
+    ]
+    for _, r in fits_table(study).iterrows():
+        lines.append(f"| {r['discretisation']} | {r['field']} | {r['p']:.2f} | {r['q']:.2f} | {r['time_factor_per_digit']:.3g} |")
+    for name in ERROR_NAMES:
+        part = f[f["field"] == name] if not f.empty else f
+        if part.empty:
+            continue
+        discs = list(dict.fromkeys(part["discretisation"]))
+        lines += ["", f"## {name}: to reach E <= tau you need", "",
+                  "| tau (rel) | tau | " + " | ".join(discs) + " |",
+                  "|---|---|" + "---|" * len(discs)]
+        for tau_rel, group in part.groupby("tau_rel", sort=False):
+            cells = []
+            for disc in discs:
+                r = group[group["discretisation"] == disc]
+                if r.empty or not math.isfinite(r["h"].iloc[0]):
+                    cells.append("-")
+                    continue
+                r = r.iloc[0]
+                star = "*" if r["extrapolated"] else ""
+                cells.append(f"h = 1/{r['n_needed']:.0f}{star}, {r['time_s']:.3g} s, {r['memory_mb']:.0f} MB")
+            lines.append(f"| {tau_rel:g} | {group['tau'].iloc[0]:.3g} | " + " | ".join(cells) + " |")
+    best = cheapest(f) if not f.empty else {}
+    if best:
+        lines += ["", "## Cheapest per field (smallest predicted time)", ""]
+        for name, by_tau in best.items():
+            lines.append(f"- {name}: " + ", ".join(f"tau {t}: {d}" for t, d in by_tau.items()))
+    return "\n".join(lines) + "\n"
+
+
+LABELS = {"u": r"$\|u-u_h\|_V$", "phi": r"$\|\varphi-\varphi_h\|_W$", "theta": r"$\|\theta-\theta_h\|_Q$",
+          "total": r"$E^h$"}
+
+
+def plot_errors(study: CostStudy, x: str, xlabel: str, target: Path) -> None:
+    fig = Figure(figsize=(10, 7.5))
+    axes = fig.subplots(2, 2).ravel()
+    table = study.table[~study.table["discretisation"].str.contains("reference")]
+    for ax, name in zip(axes, ERROR_NAMES):
+        for disc, rows in table.groupby("discretisation", sort=False):
+            rows = rows[np.isfinite(rows[f"err_{name}"].astype(float))]
+            fit = study.fits.get(disc)
+            label = disc + (f" (p = {fit.errors[name].exponent:.2f})" if fit and name in fit.errors else "")
+            ax.loglog(rows[x], rows[f"err_{name}"], "-o", markersize=4, label=label)
+        ax.set_title(LABELS[name])
+        ax.set_xlabel(xlabel)
+        ax.grid(True, which="both", alpha=0.3)
+        ax.legend(fontsize=8)
+    fig.suptitle(f"{study.scene}: error against {study.reference[0]} at h = 1/{study.reference[1]}")
+    fig.tight_layout()
+    fig.savefig(target, format="png", dpi=110)
+
+
+SPLIT = (
+    ("mesh_s", "mesh (gmsh)"),
+    ("startup_s", "FreeFEM start-up"),
+    ("setup_s", "setup (mesh read, warm start, checks)"),
+    ("bulk_assembly_s", "bulk assembly"),
+    ("first_factorisation_s", "first factorisation"),
+    ("refactor_s", "further factorisations"),
+    ("solve_s", "GMRES / triangular solves"),
+    ("newton_other_s", "rest of Newton (tangent, residuals, block matrix)"),
+    ("output_s", "output"),
+)
+
+
+def split_columns(table: pd.DataFrame) -> pd.DataFrame:
+    t = table.copy()
+    t["refactor_s"] = t["factorisation_s"] - t["first_factorisation_s"]
+    t["newton_other_s"] = t["newton_s"] - t["assembly_s"] - t["factorisation_s"] - t["solve_s"]
+    t["newton_other_s"] += t["assembly_s"] - t["bulk_assembly_s"]
+    t["setup_s"] = t["wall_s"] - t["startup_s"] - t["newton_s"] - t["output_s"]
+    return t
+
+
+def plot_time_split(study: CostStudy, target: Path) -> None:
+    """Per level, each part's share of the level's wall time (mesh included), the total on top."""
+    table = split_columns(study.table[~study.table["discretisation"].str.contains("reference")])
+    groups = list(table.groupby("discretisation", sort=False))
+    fig = Figure(figsize=(4.2 * len(groups) + 3.2, 4.5))
+    axes = np.atleast_1d(fig.subplots(1, len(groups), sharey=True))
+    for ax, (disc, rows) in zip(axes, groups):
+        labels = [f"1/{n}" for n in rows["n"]]
+        parts = np.clip(np.array([rows[c].to_numpy(dtype=float) for c, _ in SPLIT]), 0, None)
+        totals = parts.sum(axis=0)
+        bottom = np.zeros(len(rows))
+        for (column, label), values, i in zip(SPLIT, parts, range(len(SPLIT))):
+            share = 100 * values / totals
+            ax.bar(labels, share, bottom=bottom, color=f"C{i}", label=label)
+            bottom += share
+        for x, total in zip(labels, totals):
+            ax.annotate(f"{total:.2g} s", (x, 100), ha="center", va="bottom", fontsize=7)
+        ax.set_ylim(0, 108)
+        ax.set_title(f"{disc}: where the time goes", fontsize=10)
+        ax.set_xlabel("h")
+    axes[0].set_ylabel("% of the level's wall time (mesh + FreeFEM)")
+    axes[-1].legend(fontsize=7, loc="center left", bbox_to_anchor=(1.02, 0.5))
+    fig.tight_layout()
+    fig.savefig(target, format="png", dpi=110)
+
+
+def plot_scaling(study: CostStudy, target: Path) -> None:
+    s = study.scaling
+    if s.empty:
+        return
+    exps = scaling_exponents(s)
+    fig = Figure(figsize=(6.4, 4.8))
+    ax = fig.subplots()
+    ax.loglog(s["dofs"], s["wall_s"], "-o", label=f"wall s (slope {exps['time_vs_dofs']:.2f} for n >= 32)")
+    ax.loglog(s["dofs"], s["peak_rss_mb"] / 1000, "-s", label=f"peak RSS GB (slope {exps['memory_vs_dofs']:.2f})")
+    for _, r in s.iterrows():
+        ax.annotate(f"1/{r['n']}", (r["dofs"], r["wall_s"]), fontsize=7, textcoords="offset points", xytext=(3, -9))
+    ax.set_xlabel("dofs")
+    ax.set_title(f"{study.scene}: P1 chain, time and memory per level")
+    ax.grid(True, which="both", alpha=0.3)
+    ax.legend(fontsize=8)
+    fig.tight_layout()
+    fig.savefig(target, format="png", dpi=110)
+
+
+def summary(study: CostStudy) -> dict[str, Any]:
+    table = study.table
+    p1 = table[table["discretisation"] == "P1"]
+    finest = p1.iloc[-1] if not p1.empty else None
+    return {
+        "scene": study.scene,
+        "reference": {"element": study.reference[0], "n": study.reference[1]},
+        "reference_norms": study.norms,
+        "freefem_startup_s": study.startup_s,
+        "load_1min_at_start": study.load_1min,
+        "reused_runs": int(table["reused"].sum()),
+        "p1_finest": None if finest is None else {
+            k: finest[k] for k in ("n", "dofs", "wall_s", "chain_s", "newton_over_linear", "peak_rss_mb")
+        },
+        "fits": fits_table(study).to_dict(orient="records"),
+        "cheapest": cheapest(study.frontier) if not study.frontier.empty else {},
+        "scaling": study.scaling[["n", "dofs", "newton_iterations", "wall_s", "peak_rss_mb", "rss_source",
+                                  "newton_over_linear"]]
+        .to_dict(orient="records") if not study.scaling.empty else [],
+        "scaling_exponents": scaling_exponents(study.scaling),
+    }
+
+
+def write_outputs(study: CostStudy, directory: Path) -> list[Path]:
+    directory.mkdir(parents=True, exist_ok=True)
+    paths = {
+        "cost.csv": lambda p: p.write_text(study.table.to_csv(index=False, float_format="%.6g")),
+        "fits.csv": lambda p: p.write_text(fits_table(study).to_csv(index=False, float_format="%.6g")),
+        "frontier.csv": lambda p: p.write_text(study.frontier.to_csv(index=False, float_format="%.6g")),
+        "frontier.md": lambda p: p.write_text(frontier_markdown(study)),
+        "scaling.csv": lambda p: p.write_text(study.scaling.to_csv(index=False, float_format="%.6g")),
+        "summary.json": lambda p: p.write_text(json.dumps(jsonable(summary(study)), indent=2) + "\n"),
+        "cost_vs_time.png": lambda p: plot_errors(study, "chain_s", "wall seconds (chain up to the level)", p),
+        "cost_vs_dofs.png": lambda p: plot_errors(study, "dofs", "dofs", p),
+        "time_split.png": lambda p: plot_time_split(study, p),
+        "scaling.png": lambda p: plot_scaling(study, p),
+    }
+    written = []
+    for name, write in paths.items():
+        target = directory / name
+        tmp = target.with_name(f".tmp-{name}")
+        write(tmp)
+        if tmp.exists():
+            os.replace(tmp, target)
+            written.append(target)
+    return written
+
+
+def jsonable(value: Any) -> Any:
+    if isinstance(value, dict):
+        return {str(k): jsonable(v) for k, v in value.items()}
+    if isinstance(value, (list, tuple)):
+        return [jsonable(v) for v in value]
+    if hasattr(value, "item"):
+        value = value.item()
+    if isinstance(value, float) and not math.isfinite(value):
+        return None
+    return value
+
+
+# ---------------------------------------------------------------- command line
+
+
+def level_list(text: str) -> tuple[int, ...]:
+    return tuple(sorted({int(part) for part in text.split(",") if part.strip()}))
+
+
+def reference_spec(text: str) -> tuple[str, int]:
+    element, _, n = text.partition(":")
+    if element not in ("P1", "P2") or not n.isdigit():
+        raise argparse.ArgumentTypeError(f"{text!r}: expected ELEMENT:N, e.g. P2:128")
+    return element, int(n)
+
+
+def main(argv: Sequence[str] | None = None) -> int:
+    top = argparse.ArgumentParser(prog="python -m harness.cost", description=__doc__.splitlines()[0])
+    top.add_argument("case", type=Path)
+    top.add_argument("--levels", type=level_list, help="levels n = 1/h (default: the case's)")
+    top.add_argument("--reference", type=reference_spec, default=None,
+                     help="ELEMENT:N of the reference (default P2 at twice the finest level)")
+    top.add_argument("--discretisations", default=",".join(DISCRETISATIONS),
+                     help=f"comma-separated, of {', '.join(DISCRETISATIONS)}")
+    top.add_argument("--scaling-levels", type=level_list, default=(128, 256),
+                     help="levels the P1 chain goes on to, for time and memory against dofs")
+    top.add_argument("--set", dest="overrides", action="append", default=[], metavar="KEY=VALUE")
+    top.add_argument("--results", type=Path, default=DEFAULT_RESULTS)
+    top.add_argument("--force", action="store_true", help="rerun every level (for timings)")
+    args = top.parse_args(argv)
+    try:
+        base = load_scene(args.case, args.overrides)
+        levels = args.levels or base.levels
+        reference = args.reference or ("P2", 2 * max(levels))
+        discs = [d.strip() for d in args.discretisations.split(",") if d.strip()]
+        unknown = [d for d in discs if d not in DISCRETISATIONS]
+        if unknown:
+            raise HarnessError(f"unknown discretisation {unknown[0]!r} (have {', '.join(DISCRETISATIONS)})")
+        study = run_cost(args.case, levels, discs, reference, args.scaling_levels, args.overrides,
+                         args.results, args.force)
+        written = write_outputs(study, args.results)
+    except HarnessError as exc:
+        print(f"error: {exc}", file=sys.stderr)
+        return 2
+    print(study.table[["discretisation", "n", "dofs", "newton_iterations", "wall_s", "chain_s", "peak_rss_mb",
+                       "err_u", "err_phi", "err_theta", "newton_over_linear"]]
+          .to_string(index=False, float_format=lambda v: f"{v:.4g}"))
+    print(frontier_markdown(study))
+    print("wrote " + ", ".join(str(p) for p in written))
+    return 0
+
+
+if __name__ == "__main__":
+    sys.exit(main())

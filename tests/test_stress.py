@@ -1,0 +1,202 @@
+"""The stress suite (issue 4) on coarse meshes: every hard case converges with the physical
+checks passing and within its iteration bound, or fails with the reason it is known to
+fail with; each case is hard the way its header says. `make stress` runs the full levels.
+"""
+
+from __future__ import annotations
+
+import json
+import math
+
+import numpy as np
+import pytest
+
+from harness import stress
+from harness.errors import RunError
+from harness.fields import read_fields
+from harness.layout import Layout
+from harness.scene import load_scene
+
+CASES = sorted(stress.HARD.glob("*.toml"))
+COARSE = 8  # levels up to h = 1/8: the whole suite runs in a few seconds
+
+# Newton iterations per level measured at levels 2, 4, 8 (chains from the coarser level);
+# the bound is that plus 3. The default covers every case not listed (measured <= 7).
+MEASURED_ITERATIONS = {"gap_partial": 18, "unstructured": 9}
+DEFAULT_ITERATIONS = 7
+
+
+@pytest.fixture(scope="module")
+def suite(tmp_path_factory) -> dict[str, tuple[stress.CaseResult, dict]]:
+    layout = Layout(results=tmp_path_factory.mktemp("stress"))
+    out = {}
+    for case in CASES:
+        levels = [n for n in load_scene(case).levels if n <= COARSE]
+        result = stress.run_case(case, layout, levels=levels)
+        out[case.stem] = (result, stress.summary_row(result))
+    return out
+
+
+def test_every_case_says_why_it_is_hard_and_known_failures_name_real_cases():
+    assert len(CASES) >= 20
+    for case in CASES:
+        assert len(stress.hard_because(case)) > 20, case
+        assert load_scene(case).name == case.stem  # results/stress/<case>/ is the case's own
+    assert set(stress.KNOWN_FAILURES) <= {c.stem for c in CASES}
+    for reason, why in stress.KNOWN_FAILURES.values():
+        assert reason in stress.STATUSES and why
+
+
+def test_the_suite_covers_the_issue_list():
+    """Issue 4's list, as values of the case files."""
+    tables = {c.stem: load_scene(c).table for c in CASES}
+    values = lambda section, key: {t[section].get(key) for t in tables.values() if section in t}
+    assert {1e3, 1e11, 1e15} <= values("contact", "c_nu")
+    assert {0.0, 8.5, 1e12} <= values("contact", "S")
+    assert any(v > 0 for v in values("contact", "gap"))
+    assert any(v > 0 for v in values("loads", "traction_y"))
+    assert any(v != 0 for v in values("loads", "traction_x"))
+    assert {1e-12, 1e-3} <= values("electric_contact", "eps_e")
+    assert {1e-12, 1e-3} <= values("thermal_contact", "eps_c")
+    assert any(math.isfinite(v) for v in values("electric_contact", "L"))
+    assert 2000.0 in values("thermal_contact", "theta_f")
+    assert {1e4, -1e4} <= values("electric_contact", "phi_f")
+    assert -1e8 in values("loads", "traction_y")
+    assert any("piezoelectric" not in t["scene"]["effects"] for t in tables.values())
+    assert any(t["study"]["levels"] == [2] for t in tables.values())
+    assert "unstructured" in values("geometry", "diagonals")
+
+
+@pytest.mark.parametrize("case", [c.stem for c in CASES])
+def test_case_converges_with_its_checks_or_fails_as_known(suite, case):
+    result, row = suite[case]
+    if case in stress.KNOWN_FAILURES:
+        reason, _ = stress.KNOWN_FAILURES[case]
+        # Still failing, and for the listed reason: a fix (or a new way to fail) shows here.
+        assert row["status"] == "known_failure", row["note"]
+        assert result.last.status == reason
+        return
+    assert row["status"] == "converged", row["note"]
+    assert row["note"] == ""
+    failed = {k: row[k] for k in stress.CHECK_FLAGS if not row[k]}
+    assert not failed, (failed, {k: row.get(k) for k in (
+        "force_imbalance", "force_residual_bound", "max_sigma_nu", "sigma_nu_scale", "sigma_tau_excess", "heat_imbalance",
+        "charge_imbalance", "heat_flux_open_error", "charge_flux_open_error")})
+    bound = MEASURED_ITERATIONS.get(case, DEFAULT_ITERATIONS) + 3
+    assert all(run.record["newton_iterations"] <= bound for run in result.levels), row["iterations_per_level"]
+
+
+def gamma3(result: stress.CaseResult):
+    """Fields on Gamma_3 at the finest level run: x, penetration s, phi (or None)."""
+    fields = read_fields(result.last.directory / "solution.vtu")
+    nodes = np.concatenate(stress.contact_nodes(result.scene, fields))
+    s = -fields.field("u")[nodes, 1] - result.scene.table["contact"]["gap"]
+    phi = fields.field("phi")[nodes] if "phi" in fields.values else None
+    return fields.points[nodes, 0], s, phi
+
+
+def test_each_case_is_hard_the_way_its_header_says(suite):
+    """The regimes the case files claim, read from the solutions."""
+    def last(case):
+        return suite[case][0].last.record
+
+    def row(case):
+        return suite[case][1]
+
+    # Friction: all stick, some slip, all slip (S = 0), read from the final stick/slip count.
+    assert row("friction_stick")["slip_nodes"] == 0 and row("friction_stick")["active_nodes"] > 0
+    slip = row("friction_partial_slip")
+    assert 0 < slip["slip_nodes"] < slip["gamma3_nodes"]
+    assert row("friction_free")["slip_nodes"] == row("friction_free")["gamma3_nodes"]
+    # Gap: never closes / closes on part of Gamma_3 only; lift-off: nothing touches.
+    for case in ("gap_open", "lift_off"):
+        assert last(case)["contact_force"] == 0 and row(case)["active_nodes"] == 0
+    _, s, _ = gamma3(suite["gap_partial"][0])
+    assert (s > 0).any() and (s <= 0).any()
+    # Truncation: |phi - phi_f| > L at some node of Gamma_3.
+    table = suite["truncation_active"][0].scene.table["electric_contact"]
+    _, _, phi = gamma3(suite["truncation_active"][0])
+    assert np.abs(phi - table["phi_f"]).max() > table["L"]
+    # Penetration against eps: from zero every solution stays on the conductance ramp
+    # (0 < s < eps somewhere), even with eps = 1e-12; from the pressed start with eps = 1e-12
+    # the conductances are saturated everywhere (a step).
+    for case in ("eps_jump", "eps_large"):
+        eps = suite[case][0].scene.table["thermal_contact"]["eps_c"]
+        _, s, _ = gamma3(suite[case][0])
+        assert 0 < s.max() < eps
+    _, s, _ = gamma3(suite["eps_jump_pressed"][0])
+    assert s.min() > 1e6 * 1e-12
+    # Loads 1e6 larger: every conductance saturated (penetration above eps everywhere).
+    _, s, _ = gamma3(suite["load_huge"][0])
+    assert s.min() > 1e-6
+    # The coarsest mesh: 5 contact nodes; the unstructured mesh is not the lattice.
+    assert row("coarsest")["gamma3_nodes"] == 5
+    points = read_fields(suite["unstructured"][0].last.directory / "solution.vtu").points
+    n = suite["unstructured"][0].last.n
+    assert np.abs(points * n - np.round(points * n)).max() > 0.05
+
+
+def test_paper_scene_iterations_do_not_grow_with_refinement(tmp_path):
+    """Each level from the coarser one: a few iterations per level, not growing (measured
+    6, 4, 4, 4 at n = 2 ... 16 and 4, 3 at 32, 64); from zero they grow (6, 10, 17, 19)."""
+    table = stress.paper_iterations(Layout(results=tmp_path), (2, 4, 8, 16))
+    chain = table[table["start"] == "coarser"].set_index("n")["newton_iterations"]
+    zero = table[table["start"] == "zero"].set_index("n")["newton_iterations"]
+    assert (table["status"] == "converged").all()
+    assert chain.loc[[4, 8, 16]].max() <= 5
+    assert chain[16] <= chain[4]
+    assert zero[16] > zero[4] > chain[4]  # the warm start is what keeps the count flat
+
+
+# ---- the classification and the checks, without FreeFEM ----------------------------------
+
+@pytest.mark.parametrize("reason", ["diverged", "max_iterations", "nan"])
+def test_newton_failures_are_classified_from_run_json(tmp_path, reason):
+    (tmp_path / "run.json").write_text(json.dumps({"reason": reason, "converged": False}))
+    status, record = stress.classify(RunError("x n=2: Newton ..."), tmp_path)
+    assert status == reason and record["reason"] == reason
+
+
+def test_a_timeout_and_a_freefem_error_are_classified_from_the_message(tmp_path):
+    assert stress.classify(RunError("x n=2: timed out after 5 s (process group killed)"), tmp_path)[0] == "timeout"
+    assert stress.classify(RunError("x n=2: FreeFEM compile error: ..."), tmp_path)[0] == "freefem_error"
+
+
+def paper_record(**checks) -> dict:
+    base = {"applied_load": [0.0, -200.0], "force_imbalance": 1e-14, "max_sigma_nu": -1e-7,
+            "min_sigma_nu": -3e-6, "max_abs_sigma_tau": 0.02, "S": 8.5, "heat_source": 0.0,
+            "heat_out_dirichlet": 1e-4, "max_heat_flux_contact": 1e-4, "max_heat_flux_open": 0.0,
+            "charge_source": 0.0, "charge_out_dirichlet": -5e-7, "max_charge_flux_contact": 3e-7,
+            "max_charge_flux_open": 0.0}
+    return {"heat_in_contact": 1e-4, "charge_in_contact": -5e-7, "checks": {**base, **checks}}
+
+
+@pytest.mark.parametrize("checks, flag", [
+    ({}, None),
+    ({"force_imbalance": 1e-6}, "force_ok"),
+    ({"max_sigma_nu": 1e-3}, "sigma_nu_ok"),            # tension of 1e-5 of the 100 N/m^2 load
+    ({"max_abs_sigma_tau": 8.5 * (1 + 1e-5)}, "sigma_tau_ok"),
+    ({"max_heat_flux_open": 1e-9}, "open_flux_ok"),     # 1e-5 of the largest nodal flux
+    ({"heat_out_dirichlet": 1.0001e-4}, "heat_ok"),
+    ({"charge_out_dirichlet": -5.001e-7}, "charge_ok"),
+])
+def test_each_check_fails_on_a_violation_it_is_meant_to_catch(checks, flag):
+    scene = load_scene(stress.PAPER)
+    out = stress.physical_checks(paper_record(**checks), scene, fields=None)
+    failed = [k for k in stress.CHECK_FLAGS if not out[k]]
+    assert failed == ([flag] if flag else [])
+    assert out["checks_ok"] == (flag is None)
+
+
+def test_the_unstructured_mesh_is_distorted_reproducible_and_passes_the_mesh_checks(tmp_path):
+    """geometry.diagonals = "unstructured" (harness/mesh.py): gmsh's Frontal-Delaunay mesh of
+    size h with interior nodes shifted by up to 0.3 h; boundary roles exact, every triangle
+    positive (check_mesh inside build_mesh), the same bytes on every call (seeded by n)."""
+    from harness.mesh import build_mesh
+
+    scene = load_scene(stress.HARD / "unstructured.toml")
+    first = build_mesh(scene.geometry, 8, tmp_path / "a")
+    again = build_mesh(scene.geometry, 8, tmp_path / "b")
+    assert first.path.read_bytes() == again.path.read_bytes()
+    assert first.role_lengths == {"clamped": 2.0, "loaded": 2.0, "free": 4.0, "contact": 2.0}
+    assert first.nodes != (4 * 8 + 1) * (8 + 1)  # not the structured lattice
