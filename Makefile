@@ -54,9 +54,10 @@ stress: $(STAMP) freefem
 branches: $(STAMP) freefem
 	$(PY) -m harness.branches
 
-# What accuracy costs (issue 5): P1, P2 and P1 with a loose Newton tolerance against one
-# P2 reference (h = 1/128), the P1 chain on to h = 1/256 for time and memory against dofs,
-# into results/cost/ (cost.csv, fits.csv, frontier.md/.csv, scaling.csv, PNGs; ~10 min).
+# What accuracy costs (issue 5): P1, P2, P1 with a loose Newton tolerance and P1 on a mesh
+# graded towards the ends of Gamma_3, against one P2 reference (h = 1/64); the P1 chain on
+# to h = 1/256 for time and memory against dofs; into results/cost/ (cost.csv, fits.csv,
+# frontier.md/.csv, scaling.csv, PNGs; ~5 min).
 # Cached runs keep their old timings: COST_FLAGS=--force reruns every level.
 # `make bench` repeats the timings that matter (finest level alone, the sweep, the CLI)
 # five times, medians and min-max, into results/bench/ (bench.csv, bench.md); it waits

@@ -1,6 +1,6 @@
 """What accuracy costs in time (issue 5): the cost-accuracy frontier of a scene.
 
-    python -m harness.cost cases/paper.toml [--levels 2,4,...] [--reference P2:128]
+    python -m harness.cost cases/paper.toml [--levels 2,4,...] [--reference P2:64]
         [--discretisations P1,P2,P1-rtol] [--scaling-levels 128,256] [--set k=v]
         [--results results/cost] [--force]
 
@@ -49,7 +49,7 @@ from harness.errors import HarnessError, RunError
 from harness.layout import REPO, Layout
 from harness.mesh import build_mesh
 from harness.rates import slope_fit
-from harness.run import RunResult, check_solver_files
+from harness.run import RunResult, WarmStart, check_solver_files, run_level
 from harness.scene import Scene, load_scene
 from harness.study import run_chain, stderr_line
 
@@ -58,6 +58,8 @@ ERROR_NAMES = (*FIELDS, "total")
 DEFAULT_RESULTS = REPO / "results" / "cost"
 # Relative accuracies of the frontier table: E <= tau_rel * ||reference||, per field.
 TAUS_REL = (1e-1, 3e-2, 1e-2, 3e-3, 1e-3)
+# The table gives no prediction for an h more than this factor outside the fitted levels.
+MAX_EXTRAPOLATION = 4.0
 
 
 @dataclass(frozen=True)
@@ -65,6 +67,7 @@ class Discretisation:
     name: str
     overrides: tuple[str, ...]
     description: str
+    grading: float = 1.0  # > 1: the mesh graded towards the ends of Gamma_3 (graded_msh)
 
 
 DISCRETISATIONS = {
@@ -73,7 +76,71 @@ DISCRETISATIONS = {
     "P1-rtol": Discretisation(
         "P1-rtol", ("scene.element=P1", "newton.rtol=1e-4"), "P1, Newton stopped at a relative increment of 1e-4"
     ),
+    # Non-nested with the reference: its error is integrated on the reference mesh with
+    # every triangle split in 4 (reference_error.idp); against 16 the error norms moved by
+    # < 0.01 % (and by < 0.2 % against no split) at h = 1/4, 1/8.
+    "P1-graded": Discretisation(
+        "P1-graded", ("scene.element=P1", "reference.split=2"),
+        "P1 on a mesh graded towards the ends of Gamma_3 (x -> 1, 3 and y -> 0, power 1.5)", grading=1.5,
+    ),
 }
+
+
+# ---------------------------------------------------------------- graded meshes
+
+
+def graded_coordinate(t: np.ndarray, focus: Sequence[float], power: float) -> np.ndarray:
+    """A monotone map of [a, b] onto itself that fixes the focus points and the breakpoints
+    between them and packs the lattice towards the focus points: on a segment from a focus
+    point f to the next breakpoint or focus point g (half-way between two focus points),
+    s = (t - f)/(g - f) becomes s^power: cells of size ~h^power at the focus against
+    power * h far from it (an r^(1/2) singularity asks for power >= 2 with P1, which
+    coarsens the rest of the mesh too much here: see README, Cost)."""
+    out = t.astype(float).copy()
+    points = sorted(focus)
+    for i, f in enumerate(points):
+        left = (points[i - 1] + f) / 2 if i > 0 else None
+        right = (f + points[i + 1]) / 2 if i + 1 < len(points) else None
+        lo = left if left is not None else -np.inf
+        hi = right if right is not None else np.inf
+        for end in (lo, hi):
+            if not np.isfinite(end):
+                end = t.min() if end < 0 else t.max()
+            span = end - f
+            if span == 0:
+                continue
+            mask = (t - f) / span >= 0
+            mask &= (t >= min(f, end)) & (t <= max(f, end))
+            out[mask] = f + span * ((t[mask] - f) / span) ** power
+    return out
+
+
+def graded_msh(uniform: Path, target: Path, width: float, focus_x: Sequence[float], power: float) -> None:
+    """Copy a structured MSH 2.2 mesh with its nodes moved by graded_coordinate in x
+    (towards focus_x) and in y (towards y = 0). The topology, labels and orientation (both
+    maps are increasing) are unchanged; the family is no longer nested."""
+    lines = uniform.read_text().splitlines()
+    start = lines.index("$Nodes") + 2
+    count = int(lines[start - 1])
+    rows = [line.split() for line in lines[start:start + count]]
+    xy = np.array([[float(r[1]), float(r[2])] for r in rows])
+    gx = graded_coordinate(np.clip(xy[:, 0], 0, width), focus_x, power)
+    gy = graded_coordinate(xy[:, 1], [0.0], power)
+    for i, r in enumerate(rows):
+        lines[start + i] = f"{r[0]} {float(gx[i])!r} {float(gy[i])!r} {r[3]}"
+    target.parent.mkdir(parents=True, exist_ok=True)
+    tmp = target.with_name(f".tmp-{target.name}")
+    tmp.write_text("\n".join(lines) + "\n")
+    os.replace(tmp, target)
+
+
+def contact_ends(scene: Scene) -> list[float]:
+    """The x of the ends of the contact segments on the bottom (the ends of Gamma_3)."""
+    ends = set()
+    for seg in scene.table["geometry"]["bottom"]:
+        if seg[2] == "contact":
+            ends |= {float(seg[0]), float(seg[1])}
+    return sorted(ends)
 
 
 # ---------------------------------------------------------------- fits and the frontier
@@ -166,6 +233,8 @@ def frontier_rows(
                     "time_s": fit.time(h) if ok else math.nan,
                     "memory_mb": fit.memory(h) if ok else math.nan,
                     "extrapolated": bool(ok and not (fit.h_range[0] <= h <= fit.h_range[1])),
+                    # How far outside the fitted h range (1 inside it).
+                    "extrapolation": max(fit.h_range[0] / h, h / fit.h_range[1], 1.0) if ok else math.nan,
                     "p": fit.errors[name].exponent,
                     "q": -fit.time.exponent,
                 })
@@ -178,9 +247,10 @@ def next_level(h: float) -> int:
 
 
 def cheapest(frontier: pd.DataFrame) -> dict[str, dict[str, str]]:
-    """Per field and tau_rel, the discretisation with the smallest predicted time."""
+    """Per field and tau_rel, the discretisation with the smallest predicted time (among
+    predictions at most MAX_EXTRAPOLATION outside their fitted levels)."""
     out: dict[str, dict[str, str]] = {}
-    ok = frontier[np.isfinite(frontier["time_s"])]
+    ok = frontier[np.isfinite(frontier["time_s"]) & (frontier["extrapolation"] <= MAX_EXTRAPOLATION)]
     for (name, tau_rel), group in ok.groupby(["field", "tau_rel"], sort=False):
         best = group.loc[group["time_s"].idxmin()]
         out.setdefault(name, {})[f"{tau_rel:g}"] = str(best["discretisation"])
@@ -190,11 +260,17 @@ def cheapest(frontier: pd.DataFrame) -> dict[str, dict[str, str]]:
 # ---------------------------------------------------------------- running
 
 
-def timed_meshes(scene: Scene, levels: Sequence[int], layout: Layout) -> tuple[dict[int, Path], dict[int, float]]:
+def timed_meshes(
+    scene: Scene, levels: Sequence[int], layout: Layout, grading: float = 1.0
+) -> tuple[dict[int, Path], dict[int, float]]:
     paths, seconds = {}, {}
     for n in sorted(levels):
         start = time.perf_counter()
         paths[n] = build_mesh(scene.geometry, n, layout.meshes_dir(scene.name)).path
+        if grading != 1.0:
+            graded = paths[n].with_name(f"graded_n{n}.msh")
+            graded_msh(paths[n], graded, scene.table["geometry"]["width"], contact_ends(scene), grading)
+            paths[n] = graded
         seconds[n] = time.perf_counter() - start
     return paths, seconds
 
@@ -317,20 +393,45 @@ def run_cost(
         scene = load_scene(case, [*overrides, *disc.overrides, f"scene.name={base.name}-{name}", *ref_options])
         # A level of the reference's own element and mesh would measure the reference against itself.
         disc_levels = [n for n in levels if n <= ref_n and not (n == ref_n and scene.element == ref_element)]
-        if name == "P1":
-            disc_levels = sorted(set(disc_levels) | set(scaling_levels))
         progress(f"{name}: {disc.description}, levels {disc_levels}")
-        meshes, mesh_s = timed_meshes(scene, disc_levels, layout)
+        meshes, mesh_s = timed_meshes(scene, disc_levels, layout, disc.grading)
         runs = run_chain(scene, meshes, layout, force, progress)
-        rows += [row_of(base.name, name, scene.element, runs[n], mesh_s[n], startup, n > ref_n)
-                 for n in disc_levels]
+        rows += [row_of(base.name, name, scene.element, runs[n], mesh_s[n], startup) for n in disc_levels]
         norms = norms or reference_norms(runs[disc_levels[0]].record)
+        if name == "P1":
+            rows += [dict(r, scene=base.name) for r in scaling_rows(
+                scene, [n for n in scaling_levels if n not in runs], runs, meshes, layout, force, startup, progress)]
 
     table = add_chain_costs(pd.DataFrame(rows))
     scaling = table[table["discretisation"] == "P1"].reset_index(drop=True)
     study = CostStudy(base.name, reference, table, scaling, startup, load, norms)
     analyse(study, discretisations)
     return study
+
+
+def scaling_rows(
+    scene: Scene, levels: Sequence[int], runs: dict[int, RunResult], meshes: dict[int, Path], layout: Layout,
+    force: bool, startup: float, progress: Callable[[str], None],
+) -> list[dict[str, Any]]:
+    """The P1 chain continued to finer levels, for time and memory against dofs only. A
+    level that fails (out of memory, say) ends the chain with a row saying why, not the study."""
+    rows = []
+    warm = WarmStart(meshes[max(runs)], runs[max(runs)].directory / "state.txt")
+    for n in sorted(levels):
+        start = time.perf_counter()
+        mesh = build_mesh(scene.geometry, n, layout.meshes_dir(scene.name)).path
+        mesh_s = time.perf_counter() - start
+        try:
+            run = run_level(scene, mesh, n, layout, force, warm)
+        except RunError as exc:
+            progress(f"scaling n={n} FAILED: {exc}")
+            rows.append({"scene": scene.name, "discretisation": "P1", "element": "P1", "n": n, "h": 1.0 / n,
+                         "mesh_s": mesh_s, "startup_s": startup, "failure": str(exc)})
+            break
+        progress(f"scaling n={n} done in {run.record.get('wall_s', math.nan):.1f} s")
+        rows.append(row_of(scene.name, "P1", "P1", run, mesh_s, startup, finer_than_reference=True))
+        warm = WarmStart(mesh, run.directory / "state.txt")
+    return rows
 
 
 def reference_norms(record: dict[str, Any]) -> dict[str, float]:
@@ -340,12 +441,13 @@ def reference_norms(record: dict[str, Any]) -> dict[str, float]:
     return norms
 
 
-def analyse(study: CostStudy, discretisations: Sequence[str], error_min_n: int = 8, cost_min_n: int = 16) -> None:
-    """Fits per discretisation and the frontier. The error fits use the levels 8 <= n <=
-    n_ref/2 (coarser ones are pre-asymptotic; the reference's own level is too close to
-    it) and, for the reference's own element, n <= n_ref/4 (the level next to the
-    reference carries the reference's own error). The time and memory fits use the same
-    levels from n = 16 on (below, start-up and the harness dominate)."""
+def analyse(study: CostStudy, discretisations: Sequence[str], error_min_n: int = 4, cost_min_n: int = 16) -> None:
+    """Fits per discretisation and the frontier. The error fits use the levels 4 <= n <=
+    n_ref/2 (h = 1/2 is pre-asymptotic; at the reference's own h, P1's error against P2
+    carries ~10 % of the reference's own error) and, for the reference's own element,
+    n <= n_ref/4 (the level next to the reference carries the reference's own error in
+    full). The time and memory fits use the same levels from n = 16 on (below, start-up
+    and the harness dominate)."""
     ref_element, ref_n = study.reference
     for name in discretisations:
         rows = study.table[study.table["discretisation"] == name]
@@ -396,10 +498,10 @@ def frontier_markdown(study: CostStudy) -> str:
         f"# {study.scene}: what accuracy costs",
         "",
         f"Reference: {study.reference[0]} at h = 1/{study.reference[1]}. Fits E(h) = C h^p "
-        f"(levels n >= 8, and n <= n_ref/4 for the reference's element), T(h) = D h^-q "
-        f"(chain wall seconds, levels n >= 16), M(h) = G h^-r (peak MB). tau is relative to "
+        f"(levels 4 <= n <= n_ref/2, n <= n_ref/4 for the reference's element), T(h) = D h^-q "
+        f"(chain wall seconds, the same levels from n = 16), M(h) = G h^-r (peak MB). tau is relative to "
         f"the reference's own seminorm of the field; `*` marks an extrapolation beyond the "
-        f"fitted levels.",
+        f"fitted levels, and beyond a factor {MAX_EXTRAPOLATION:g} in h there is no prediction.",
         "",
         "| discretisation | field | p | q | time x per digit |",
         "|---|---|---|---|---|",
@@ -422,6 +524,9 @@ def frontier_markdown(study: CostStudy) -> str:
                     cells.append("-")
                     continue
                 r = r.iloc[0]
+                if r["extrapolation"] > MAX_EXTRAPOLATION:
+                    cells.append(f"(h = 1/{r['n_needed']:.0f}: too far out)")
+                    continue
                 star = "*" if r["extrapolated"] else ""
                 cells.append(f"h = 1/{r['n_needed']:.0f}{star}, {r['time_s']:.3g} s, {r['memory_mb']:.0f} MB")
             lines.append(f"| {tau_rel:g} | {group['tau'].iloc[0]:.3g} | " + " | ".join(cells) + " |")
@@ -441,12 +546,14 @@ def plot_errors(study: CostStudy, x: str, xlabel: str, target: Path) -> None:
     fig = Figure(figsize=(10, 7.5))
     axes = fig.subplots(2, 2).ravel()
     table = study.table[~study.table["discretisation"].str.contains("reference")]
+    styles = ("-o", "--s", ":^", "-.D", "-v")  # P1 and P1-rtol have the same errors: both show
     for ax, name in zip(axes, ERROR_NAMES):
-        for disc, rows in table.groupby("discretisation", sort=False):
+        for i, (disc, rows) in enumerate(table.groupby("discretisation", sort=False)):
             rows = rows[np.isfinite(rows[f"err_{name}"].astype(float))]
             fit = study.fits.get(disc)
             label = disc + (f" (p = {fit.errors[name].exponent:.2f})" if fit and name in fit.errors else "")
-            ax.loglog(rows[x], rows[f"err_{name}"], "-o", markersize=4, label=label)
+            ax.loglog(rows[x], rows[f"err_{name}"], styles[i % len(styles)], markersize=5 - i % 3,
+                      fillstyle="none" if i % 2 else "full", label=label)
         ax.set_title(LABELS[name])
         ax.set_xlabel(xlabel)
         ax.grid(True, which="both", alpha=0.3)
@@ -469,6 +576,11 @@ SPLIT = (
 )
 
 
+def finished(table: pd.DataFrame) -> pd.DataFrame:
+    """The rows of runs that finished (a failed scaling level has no times)."""
+    return table[np.isfinite(table["wall_s"].astype(float))] if "wall_s" in table else table
+
+
 def split_columns(table: pd.DataFrame) -> pd.DataFrame:
     t = table.copy()
     t["refactor_s"] = t["factorisation_s"] - t["first_factorisation_s"]
@@ -480,7 +592,7 @@ def split_columns(table: pd.DataFrame) -> pd.DataFrame:
 
 def plot_time_split(study: CostStudy, target: Path) -> None:
     """Per level, each part's share of the level's wall time (mesh included), the total on top."""
-    table = split_columns(study.table[~study.table["discretisation"].str.contains("reference")])
+    table = split_columns(finished(study.table[~study.table["discretisation"].str.contains("reference")]))
     groups = list(table.groupby("discretisation", sort=False))
     fig = Figure(figsize=(4.2 * len(groups) + 3.2, 4.5))
     axes = np.atleast_1d(fig.subplots(1, len(groups), sharey=True))
@@ -505,7 +617,7 @@ def plot_time_split(study: CostStudy, target: Path) -> None:
 
 
 def plot_scaling(study: CostStudy, target: Path) -> None:
-    s = study.scaling
+    s = finished(study.scaling)
     if s.empty:
         return
     exps = scaling_exponents(s)
@@ -539,8 +651,8 @@ def summary(study: CostStudy) -> dict[str, Any]:
         },
         "fits": fits_table(study).to_dict(orient="records"),
         "cheapest": cheapest(study.frontier) if not study.frontier.empty else {},
-        "scaling": study.scaling[["n", "dofs", "newton_iterations", "wall_s", "peak_rss_mb", "rss_source",
-                                  "newton_over_linear"]]
+        "scaling": study.scaling[[c for c in ("n", "dofs", "newton_iterations", "wall_s", "peak_rss_mb",
+                                              "rss_source", "newton_over_linear", "failure") if c in study.scaling]]
         .to_dict(orient="records") if not study.scaling.empty else [],
         "scaling_exponents": scaling_exponents(study.scaling),
     }
@@ -602,7 +714,7 @@ def main(argv: Sequence[str] | None = None) -> int:
     top.add_argument("case", type=Path)
     top.add_argument("--levels", type=level_list, help="levels n = 1/h (default: the case's)")
     top.add_argument("--reference", type=reference_spec, default=None,
-                     help="ELEMENT:N of the reference (default P2 at twice the finest level)")
+                     help="ELEMENT:N of the reference (default P2 at the finest level)")
     top.add_argument("--discretisations", default=",".join(DISCRETISATIONS),
                      help=f"comma-separated, of {', '.join(DISCRETISATIONS)}")
     top.add_argument("--scaling-levels", type=level_list, default=(128, 256),
@@ -614,7 +726,7 @@ def main(argv: Sequence[str] | None = None) -> int:
     try:
         base = load_scene(args.case, args.overrides)
         levels = args.levels or base.levels
-        reference = args.reference or ("P2", 2 * max(levels))
+        reference = args.reference or ("P2", max(levels))
         discs = [d.strip() for d in args.discretisations.split(",") if d.strip()]
         unknown = [d for d in discs if d not in DISCRETISATIONS]
         if unknown:

@@ -98,10 +98,8 @@ class Scene:
         return self.table["reference"]["state"]
 
     def reference_macros(self) -> dict[str, str]:
-        """REFERENCE switches on freefem/reference_error.idp when a reference state is set.
-        Its body is an identifier: main_script writes `macro NAME (body) //`, which FreeFEM
-        4.9 reads as a macro with parameters, and only an identifier parses there."""
-        return {"REFERENCE": "on"} if self.reference_state else {}
+        """REFERENCE switches on freefem/reference_error.idp when a reference state is set."""
+        return {"REFERENCE": "1"} if self.reference_state else {}
 
 
 def load_scene(path: Path, overrides: Iterable[str] = ()) -> Scene:

@@ -185,4 +185,8 @@ SCHEMA["reference"] = {
     "mesh": Key(str, ""),
     "state": Key(str, ""),
     "element": Key(str, "P1", one_of("P1", "P2")),
+    # The error is integrated on the reference mesh with each triangle split split^2
+    # times: 1 is exact for a run on a mesh the reference mesh refines; a non-nested run
+    # (a graded mesh) has kinks inside reference triangles, which splitting resolves.
+    "split": Key(int, 1, positive),
 }

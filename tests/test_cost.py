@@ -101,7 +101,11 @@ def test_frontier_table_inverts_the_fits():
     assert a["time_s"] == pytest.approx(1e-3 * 0.01**-2) and a["memory_mb"] == pytest.approx(200.0)
     assert b["h"] == pytest.approx(0.05) and b["level"] == 32 and not b["extrapolated"]
     assert b["time_s"] == pytest.approx(4e-3 * 0.05**-2)  # 1.6 s against A's 10 s
+    assert a["extrapolation"] == pytest.approx(1.5625) and b["extrapolation"] == 1.0
     assert cheapest(table) == {"phi": {"0.01": "B"}}
+    # Far outside the data a prediction is not offered, nor counted as the cheapest.
+    far = pd.DataFrame(frontier_rows(fits, {"phi": 10.0}, taus_rel=(1e-4,)))
+    assert (far["extrapolation"] > 4).all() and cheapest(far) == {}
 
 
 def test_next_level_is_the_first_power_of_two_at_or_below_h():
@@ -178,3 +182,17 @@ def test_a_small_cost_study_writes_its_table_plots_and_frontier(tmp_path):
     assert list(table[table["discretisation"] == "P2"]["n"]) == [2, 4]  # never against itself
     assert (p1["chain_s"].diff().dropna() > 0).all()
     assert "to reach E <= tau" in (tmp_path / "frontier.md").read_text()
+
+
+def test_graded_coordinate_fixes_the_breakpoints_and_packs_towards_the_focus():
+    from harness.cost import graded_coordinate
+    t = np.linspace(0.0, 4.0, 65)
+    g = graded_coordinate(t, [1.0, 3.0], 2.0)
+    assert np.all(np.diff(g) > 0)  # increasing: triangles keep their orientation
+    for fixed in (0.0, 1.0, 2.0, 3.0, 4.0):
+        assert g[np.isclose(t, fixed)] == pytest.approx(fixed)
+    # s^2 on [1, 2]: the first cell next to x = 1 is h^2, the last one ~2h.
+    h = 4.0 / 64
+    assert g[17] - g[16] == pytest.approx(h**2)
+    assert g[32] - g[31] == pytest.approx(1 - (1 - h) ** 2)
+    assert graded_coordinate(t, [1.0, 3.0], 1.0) == pytest.approx(t)
