@@ -32,12 +32,14 @@ from typing import Any, Sequence
 
 import pandas as pd
 
+from harness.atomic import write_atomic
 from harness.errors import HarnessError, RunError
+from harness.cli import level_list
 from harness.fields import read_fields
 from harness.layout import REPO, Layout
 from harness.report import write_report
 from harness.scene import load_scene
-from harness.stress import CHECK_FLAGS, physical_checks, stiffness
+from harness.stress import CHECK_FLAGS, cell, physical_checks, write_table
 from harness.study import run_study
 
 PAPER = REPO / "cases" / "paper.toml"
@@ -73,7 +75,7 @@ def branch_row(start: str, levels: Sequence[int], layout: Layout, jobs: int, for
     # The stress suite's physical checks on every level of the branch.
     failed = set()
     for run in study.runs.values():
-        checks = physical_checks(run.record, scene, read_fields(run.solution), stiffness(scene, layout))
+        checks = physical_checks(run.record, scene, read_fields(run.solution))
         failed |= {k.removesuffix("_ok") for k in CHECK_FLAGS if not checks[k]}
     row["checks"] = "pass" if not failed else "FAIL " + " ".join(sorted(failed))
     return row
@@ -97,9 +99,6 @@ def same_branch(rows: list[dict[str, Any]]) -> dict[str, str]:
 
 
 def markdown(table: pd.DataFrame) -> str:
-    def g(v: Any) -> str:
-        return f"{v:.3g}" if isinstance(v, float) and math.isfinite(v) else ("" if isinstance(v, float) else str(v))
-
     lines = ["| start | branch | Newton its per level | max θ [K] | φ range [V] | max \\|u\\| [m] | contact force [N/m] "
              "| heat in Γ3 [W/m] | charge in Γ3 [C/m] | active length [m] | slope u / φ / θ / total | checks |",
              "|---|---|---|---|---|---|---|---|---|---|---|---|"]
@@ -107,10 +106,10 @@ def markdown(table: pd.DataFrame) -> str:
         if row["status"] != "converged":
             lines.append(f"| {row['start']} | failed | {row['note']} |||||||||")
             continue
-        slopes = " / ".join(g(row.get(f"slope_{f}")) for f in ("u", "phi", "theta", "total"))
-        lines.append(f"| {row['start']} | {row['branch']} | {row['newton_iterations']} | {g(row['max_theta'])} | "
-                     f"[{g(row['min_phi'])}, {g(row['max_phi'])}] | {g(row['max_abs_u'])} | {g(row['contact_force'])} | "
-                     f"{g(row['heat_in_contact'])} | {g(row['charge_in_contact'])} | {g(row['active_length'])} | {slopes} | "
+        slopes = " / ".join(cell(row.get(f"slope_{f}")) for f in ("u", "phi", "theta", "total"))
+        lines.append(f"| {row['start']} | {row['branch']} | {row['newton_iterations']} | {cell(row['max_theta'])} | "
+                     f"[{cell(row['min_phi'])}, {cell(row['max_phi'])}] | {cell(row['max_abs_u'])} | {cell(row['contact_force'])} | "
+                     f"{cell(row['heat_in_contact'])} | {cell(row['charge_in_contact'])} | {cell(row['active_length'])} | {slopes} | "
                      f"{row['checks']} |")
     return "\n".join(lines) + "\n"
 
@@ -131,7 +130,7 @@ def main(argv: Sequence[str] | None = None) -> int:
     args = parser().parse_args(argv)
     layout = Layout(results=args.results, freefem=args.freefem)
     try:
-        levels = [int(v) for v in args.levels.split(",") if v.strip()]
+        levels = list(level_list(args.levels))
         starts = [s.strip() for s in args.starts.split(",") if s.strip()]
         unknown = [s for s in starts if s not in STARTS]
         if unknown:
@@ -145,8 +144,8 @@ def main(argv: Sequence[str] | None = None) -> int:
         row["branch"] = labels.get(row["start"], "")
     table = pd.DataFrame(rows)
     args.results.mkdir(parents=True, exist_ok=True)
-    (args.results / "branches.csv").write_text(table.to_csv(index=False, float_format="%.6g"))
-    (args.results / "branches.md").write_text(markdown(table))
+    write_table(table, args.results / "branches.csv")
+    write_atomic(args.results / "branches.md", markdown(table))
     print(markdown(table))
     return 0
 

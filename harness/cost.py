@@ -45,6 +45,7 @@ import pandas as pd
 from matplotlib.figure import Figure
 
 from harness import freefem
+from harness.atomic import write_atomic
 from harness.errors import HarnessError, RunError
 from harness.layout import REPO, Layout
 from harness.mesh import build_mesh
@@ -129,9 +130,7 @@ def graded_msh(uniform: Path, target: Path, width: float, focus_x: Sequence[floa
     for i, r in enumerate(rows):
         lines[start + i] = f"{r[0]} {float(gx[i])!r} {float(gy[i])!r} {r[3]}"
     target.parent.mkdir(parents=True, exist_ok=True)
-    tmp = target.with_name(f".tmp-{target.name}")
-    tmp.write_text("\n".join(lines) + "\n")
-    os.replace(tmp, target)
+    write_atomic(target, "\n".join(lines) + "\n")
 
 
 def contact_ends(scene: Scene) -> list[float]:

@@ -15,6 +15,7 @@ from typing import Any, Sequence
 import pandas as pd
 
 from harness.atomic import write_atomic
+from harness.cli import level_list
 from harness.errors import HarnessError
 from harness.layout import REPO, Layout
 from harness.report import write_report
@@ -53,7 +54,7 @@ def main(argv: Sequence[str] | None = None) -> int:
     try:
         for case in sorted(args.cases.glob("*.toml")):
             scene = load_scene(case)
-            levels = tuple(int(n) for n in args.levels.split(",")) if args.levels else scene.levels
+            levels = level_list(args.levels) if args.levels else scene.levels
             print(f"== {scene.name}: {', '.join(scene.effects)}", file=sys.stderr, flush=True)
             study = run_study(scene, levels, layout, jobs=1)
             write_report(study, layout)

@@ -35,12 +35,12 @@ from typing import Any, Sequence
 import numpy as np
 import pandas as pd
 
+from harness.atomic import write_atomic
 from harness.errors import HarnessError, RunError
 from harness.fields import Fields, read_fields
 from harness.freefem import freefem_version
 from harness.layout import REPO, Layout
 from harness.mesh import build_mesh
-from harness.mms import material_constants
 from harness.run import WarmStart, check_solver_files, run_level
 from harness.scene import Scene, load_scene
 
@@ -254,24 +254,21 @@ def natural_fluxes(scene: Scene) -> dict[str, float]:
 FLOOR = 1e-10  # of natural_fluxes (times |Gamma_3| for a total): "no flux at all"
 
 
-def force_residual_bound(record: dict[str, Any], stiffness: float | None) -> float:
+def force_residual_bound(record: dict[str, Any]) -> float:
     """Cauchy-Schwarz bound of the sum of the final mechanical residual over the free dofs,
-    relative to the force scale of checks.force_imbalance: sqrt(N_u) ||R_u|| S_u / scale.
-    S_u = C0 U (freefem/scaling.idp, C0 = the material's f11 = `stiffness`) unless run.json
-    gives it. Zero when unknown (the check is then the strict one)."""
+    relative to the force scale of checks.force_imbalance: sqrt(N_u) ||R_u|| S_u / scale,
+    S_u the mechanical equation's scale (run.json `scales`, freefem/scaling.idp). Zero when
+    unknown (the check is then the strict one)."""
     c = record.get("checks") or {}
-    scales = record.get("scales") or {}
-    su = scales.get("Su") or (stiffness * scales["U"] if stiffness and "U" in scales else 0.0)
+    su = (record.get("scales") or {}).get("Su", 0.0)
     residual = ((record.get("residuals") or {}).get("u") or [0.0])[-1]
     forces = [float(np.hypot(*c.get(k, [0.0, 0.0]))) for k in ("applied_load", "clamp_reaction", "contact_force_on_body")]
     return math.sqrt(2 * record.get("nodes", 0)) * abs(residual) * su / max(*forces, 1e-300)
 
 
-def physical_checks(record: dict[str, Any], scene: Scene, fields: Fields | None,
-                    stiffness: float | None = None) -> dict[str, Any]:
+def physical_checks(record: dict[str, Any], scene: Scene, fields: Fields | None) -> dict[str, Any]:
     """The checks of issue 4 on a converged run: values, the scale each is relative to, and
-    a pass flag per check (TOLERANCES). `stiffness`: the material's f11 [Pa], for the force
-    balance's residual bound (material_constants)."""
+    a pass flag per check (TOLERANCES)."""
     c = record.get("checks") or {}
     tol = {name: value for name, (value, _) in TOLERANCES.items()}
     length = contact_length(scene)
@@ -281,7 +278,7 @@ def physical_checks(record: dict[str, Any], scene: Scene, fields: Fields | None,
     tau = c.get("max_abs_sigma_tau", 0.0)
     out: dict[str, Any] = {
         "force_imbalance": c.get("force_imbalance", math.nan),
-        "force_residual_bound": force_residual_bound(record, stiffness),
+        "force_residual_bound": force_residual_bound(record),
         "max_sigma_nu": c.get("max_sigma_nu", math.nan),
         "sigma_nu_scale": sigma_scale,
         "max_abs_sigma_tau": tau,
@@ -325,11 +322,6 @@ CHECK_FLAGS = ("force_ok", "sigma_nu_ok", "sigma_tau_ok", "open_flux_ok", "heat_
 
 # ---- the table ---------------------------------------------------------------------------
 
-def stiffness(scene: Scene, layout: Layout | None = None) -> float:
-    """The material's plane-strain f11 [Pa], the stiffness scale C0 of freefem/scaling.idp."""
-    return material_constants(scene.material, layout or Layout())["f11"]
-
-
 def relative_residuals(record: dict[str, Any]) -> dict[str, float]:
     """Final residual of each field over the largest in its history (the first one, unless
     the initial guess zeroes that field's residual, as zero does for phi and theta)."""
@@ -358,7 +350,7 @@ def newton_work(record: dict[str, Any] | None) -> dict[str, Any]:
     }
 
 
-def summary_row(result: CaseResult, layout: Layout | None = None) -> dict[str, Any]:
+def summary_row(result: CaseResult) -> dict[str, Any]:
     last = result.last
     known = KNOWN_FAILURES.get(result.case)
     status, note = last.status, ""
@@ -389,7 +381,7 @@ def summary_row(result: CaseResult, layout: Layout | None = None) -> dict[str, A
     if last.status == "converged":
         fields = read_fields(last.directory / "solution.vtu")
         row["gamma3_nodes"] = len(np.unique(np.concatenate(contact_nodes(result.scene, fields))))
-        row.update(physical_checks(record, result.scene, fields, stiffness(result.scene, layout)))
+        row.update(physical_checks(record, result.scene, fields))
     return row
 
 
@@ -431,12 +423,11 @@ def paper_iterations(layout: Layout, levels: Sequence[int], force: bool = False)
 
 def write_table(table: pd.DataFrame, path: Path) -> None:
     path.parent.mkdir(parents=True, exist_ok=True)
-    tmp = path.with_name(f".{path.name}.tmp")
-    tmp.write_text(table.to_csv(index=False, float_format="%.6g"))
-    tmp.replace(path)
+    write_atomic(path, table.to_csv(index=False, float_format="%.6g"))
 
 
-def g(value: Any) -> str:
+def cell(value: Any) -> str:
+    """A number as a markdown table cell: 3 significant digits, blank for NaN."""
     if isinstance(value, bool) or value is None:
         return str(value)
     if isinstance(value, (float, np.floating)):
@@ -455,11 +446,11 @@ def markdown(table: pd.DataFrame) -> str:
             checks = "pass" if not failed else "FAIL " + ", ".join(failed)
         else:
             checks = row["note"].split(":")[0]
-        res = " / ".join(g(row.get(f"residual_{f}")) or "–" for f in ("u", "phi", "theta"))
-        nodes = " / ".join(g(row.get(k)) or "–" for k in ("active_nodes", "slip_nodes", "gamma3_nodes"))
+        res = " / ".join(cell(row.get(f"residual_{f}")) or "–" for f in ("u", "phi", "theta"))
+        nodes = " / ".join(cell(row.get(k)) or "–" for k in ("active_nodes", "slip_nodes", "gamma3_nodes"))
         lines.append(f"| {row['case']} | {row['status']} | {row['n']} | {row['iterations_per_level']} | {res} | "
-                     f"{g(row.get('damping_steps'))} | {g(row.get('active_set_changes'))} | {nodes} | "
-                     f"{g(row.get('contact_force'))} | {g(row.get('wall_s'))} | {checks} |")
+                     f"{cell(row.get('damping_steps'))} | {cell(row.get('active_set_changes'))} | {nodes} | "
+                     f"{cell(row.get('contact_force'))} | {cell(row.get('wall_s'))} | {checks} |")
     return "\n".join(lines) + "\n"
 
 
@@ -497,7 +488,7 @@ def main(argv: Sequence[str] | None = None) -> int:
         rows = []
         for case in case_files(args.cases):
             start = time.perf_counter()
-            row = summary_row(run_case(case, layout, args.force, levels), layout)
+            row = summary_row(run_case(case, layout, args.force, levels))
             rows.append(row)
             print(f"{row['case']:<30} {row['status']:<15} n={row['n']:<3} its {row['iterations_per_level']:<14}"
                   f" checks {'pass' if row.get('checks_ok') else '-'}  ({time.perf_counter() - start:.1f} s)"
