@@ -20,10 +20,8 @@ are not used (a level as fine as the reference, or finer, has no meaningful erro
 Costs. `wall_s` is the FreeFEM process's wall time minus the error measurement it did
 for this study (reference_s); `chain_s` adds up mesh_s + wall_s over the chain up to the
 level: what a user pays to get that level's solution from nothing. `peak_rss_mb` is the
-FreeFEM process's own high-water mark before the error measurement (VmHWM, read by
-reference_error.idp); the reference chain, which measures no error, reports the
-harness's wait4 value, which cannot be below the harness's own resident size at fork
-time (~0.15 GB: wait4's ru_maxrss counts the pages the child had before its exec).
+FreeFEM process's own high-water mark (VmHWM, freefem/memory.idp), read before the error
+measurement when there is one.
 """
 
 from __future__ import annotations
@@ -310,7 +308,6 @@ def row_of(
     errors = {} if finer_than_reference else r.get("reference_errors", {})
     wall = float(r.get("wall_s", math.nan)) - reference_s
     total = float(r.get("total_s", math.nan)) - reference_s
-    rss = r.get("peak_rss_before_reference_mb")
     row = {
         "scene": scene_name,
         "discretisation": disc,
@@ -333,8 +330,8 @@ def row_of(
         "total_s": total,
         "wall_s": wall,
         "reference_s": reference_s,
-        "peak_rss_mb": float(rss) if rss is not None and float(rss) > 0 else r.get("peak_rss_mb"),
-        "rss_source": "freefem VmHWM" if rss is not None and float(rss) > 0 else "harness wait4",
+        "peak_rss_mb": r.get("peak_rss_mb"),
+        "rss_source": r.get("peak_rss_source"),
         "newton_over_linear": r.get("newton_over_linear"),
         "reused": run.reused,
     }

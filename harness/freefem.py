@@ -2,6 +2,7 @@
 
 from __future__ import annotations
 
+import contextlib
 import functools
 import math
 import os
@@ -9,6 +10,7 @@ import re
 import signal
 import subprocess
 import tempfile
+import threading
 import time
 from dataclasses import dataclass
 from pathlib import Path
@@ -98,15 +100,28 @@ def invoke(argv: list[str], cwd: Path, timeout_s: float) -> Outcome:
 
 def wait_measured(proc: subprocess.Popen, timeout_s: float) -> tuple[int | None, float]:
     """Wait for `proc` (None on timeout) and read its own peak RSS from wait4's rusage,
-    which, unlike RUSAGE_CHILDREN, is this child's alone (Linux reports it in KiB)."""
-    deadline = time.monotonic() + timeout_s
-    while time.monotonic() < deadline:
-        pid, status, usage = os.wait4(proc.pid, os.WNOHANG)
-        if pid == proc.pid:
-            proc.returncode = os.waitstatus_to_exitcode(status)
-            return proc.returncode, usage.ru_maxrss / 1024.0
-        time.sleep(0.01)
-    return None, float("nan")
+    which, unlike RUSAGE_CHILDREN, is this child's alone (Linux reports it in KiB).
+
+    A blocking wait4 returns the moment FreeFEM exits (polling added up to 10 ms per run);
+    a timer kills the process group at the deadline."""
+    timed_out = threading.Event()
+
+    def kill() -> None:
+        timed_out.set()
+        with contextlib.suppress(ProcessLookupError):
+            os.killpg(proc.pid, signal.SIGKILL)
+
+    timer = threading.Timer(timeout_s, kill)
+    timer.daemon = True
+    timer.start()
+    try:
+        _, status, usage = os.wait4(proc.pid, 0)
+    finally:
+        timer.cancel()
+    proc.returncode = os.waitstatus_to_exitcode(status)
+    if timed_out.is_set():
+        return None, float("nan")
+    return proc.returncode, usage.ru_maxrss / 1024.0
 
 
 def error_detail(log: str) -> str:

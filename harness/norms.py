@@ -8,7 +8,7 @@ P1 gradients are constant per triangle, so the integrals are exact sums of area 
 from __future__ import annotations
 
 import numpy as np
-from matplotlib.tri import LinearTriInterpolator, Triangulation
+from matplotlib.tri import Triangulation
 
 from harness.errors import FieldsError
 from harness.fields import Fields
@@ -46,26 +46,40 @@ def seminorm(points: np.ndarray, triangles: np.ndarray, values: np.ndarray) -> f
     return float(np.sqrt(gradient_seminorm_sq(points, triangles, values)))
 
 
-def transfer(coarse: Fields, name: str, points: np.ndarray) -> np.ndarray:
-    """Evaluate the coarse P1 field `name` at `points` by point location and linear interpolation.
+def transfer_weights(coarse: Fields, points: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    """The coarse triangle of each point (point location, once for every field) and the
+    point's barycentric coordinates in it: the P1 interpolation from coarse to `points`.
 
     Exact (to round-off) when every coarse triangle is a union of fine ones (nested meshes);
     on non-nested meshes it is the nodal interpolant of the coarse field, an approximation of
     the true difference of the two P1 functions.
     """
     tri = Triangulation(coarse.points[:, 0], coarse.points[:, 1], coarse.triangles)
-    values = coarse.field(name)
-    columns = values.reshape(len(values), -1).T
-    out = [LinearTriInterpolator(tri, col)(points[:, 0], points[:, 1]) for col in columns]
-    if any(np.ma.is_masked(col) for col in out):
+    found = tri.get_trifinder()(points[:, 0], points[:, 1])
+    if np.any(found < 0):
         raise FieldsError(f"{coarse.source}: some fine nodes lie outside the coarse mesh")
-    stacked = np.column_stack([np.asarray(col, dtype=float) for col in out])
-    return stacked if values.ndim == 2 else stacked[:, 0]
+    corners = coarse.triangles[found]  # (N, 3)
+    a, b, c = (coarse.points[corners[:, i], :2] for i in range(3))
+    twice = (b[:, 0] - a[:, 0]) * (c[:, 1] - a[:, 1]) - (c[:, 0] - a[:, 0]) * (b[:, 1] - a[:, 1])
+    p = points[:, :2]
+    wb = ((p[:, 0] - a[:, 0]) * (c[:, 1] - a[:, 1]) - (c[:, 0] - a[:, 0]) * (p[:, 1] - a[:, 1])) / twice
+    wc = ((b[:, 0] - a[:, 0]) * (p[:, 1] - a[:, 1]) - (p[:, 0] - a[:, 0]) * (b[:, 1] - a[:, 1])) / twice
+    return corners, np.column_stack([1.0 - wb - wc, wb, wc])
+
+
+def transfer(coarse: Fields, name: str, points: np.ndarray,
+             weights: tuple[np.ndarray, np.ndarray] | None = None) -> np.ndarray:
+    """The coarse P1 field `name` at `points` (transfer_weights, or the given ones)."""
+    corners, w = weights if weights is not None else transfer_weights(coarse, points)
+    values = coarse.field(name)
+    at_corners = values[corners]  # (N, 3) or (N, 3, 2)
+    return np.einsum("nk,nk...->n...", w, at_corners)
 
 
 def error_norms(coarse: Fields, fine: Fields, names: list[str]) -> dict[str, float]:
     """||fine - coarse|| per field, on the fine mesh."""
+    weights = transfer_weights(coarse, fine.points)
     return {
-        name: seminorm(fine.points, fine.triangles, fine.field(name) - transfer(coarse, name, fine.points))
+        name: seminorm(fine.points, fine.triangles, fine.field(name) - transfer(coarse, name, fine.points, weights))
         for name in names
     }

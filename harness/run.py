@@ -109,7 +109,9 @@ def solve_in(
     work: Path, scene: Scene, mesh: Path, n: int, layout: Layout, guess: str, start: WarmStart | None
 ) -> dict[str, Any]:
     script = work / "main.edp"
-    script.write_text(main_script(scene.material, scene.effects, layout, element=scene.element, macros={**scene_macros(scene, layout), **scene.reference_macros()}))
+    macros = {**scene_macros(scene, layout), **scene.reference_macros()}
+    script.write_text(main_script(scene.material, scene.effects, layout, element=scene.element, macros=macros,
+                                  linear_solver=scene.linear_solver))
     options = ["-mesh", str(mesh), "-out", str(work.resolve()), "-n", str(n)]
     options += freefem.scene_options(scene.solver_parameters(), guess)
     if start:
@@ -129,7 +131,12 @@ def solve_in(
     if not (work / "solution.vtu").is_file():
         raise RunError(f"{where}: FreeFEM wrote no solution.vtu (see {log})")
     record["wall_s"] = outcome.wall_s
-    record["peak_rss_mb"] = outcome.peak_rss_mb
+    # FreeFEM's own VmHWM (memory.idp); wait4's figure, which cannot read below the harness's
+    # resident size at fork time, only where /proc is missing.
+    own = record.get("peak_rss_mb", -1) > 0
+    record["peak_rss_source"] = "freefem VmHWM" if own else "harness wait4"
+    if not own:
+        record["peak_rss_mb"] = outcome.peak_rss_mb
     record["initial_guess"] = scene.initial_guess
     record["started_from"] = guess if not start else f"file {start.state}"
     write_atomic(work / "run.json", json.dumps(record, indent=2) + "\n")

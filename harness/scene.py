@@ -55,6 +55,10 @@ class Scene:
         return self.table["run"]["timeout_s"]
 
     @property
+    def linear_solver(self) -> str:
+        return self.table["run"]["linear_solver"]
+
+    @property
     def levels(self) -> tuple[int, ...]:
         return tuple(self.table["study"]["levels"])
 
@@ -86,6 +90,7 @@ class Scene:
             "material": self.material,
             "initial_guess": self.initial_guess,
             "element": self.element,
+            "linear_solver": self.linear_solver,
             "effects": list(self.effects),
             "geometry": copy.deepcopy(self.table["geometry"]),
             **self.solver_parameters(),

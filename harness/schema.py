@@ -15,6 +15,9 @@ ROLE_LABELS = {"clamped": 1, "loaded": 2, "free": 3, "contact": 4}
 
 # Sections passed verbatim to FreeFEM as `-<section>.<key> <value>`.
 SOLVER_SECTIONS = ("loads", "contact", "electric_contact", "thermal_contact", "newton")
+# Sparse direct solvers FreeFEM offers on Debian: name -> (plugin to load, or "" for the
+# built-in UMFPACK; the name run.json reports).
+LINEAR_SOLVERS = {"mumps": ("MUMPS_seq", "MUMPS_seq"), "umfpack": ("", "UMFPACK"), "umfpack64": ("UMFPACK64", "UMFPACK64")}
 
 REQUIRED = object()
 
@@ -165,7 +168,13 @@ SCHEMA: dict[str, dict[str, Key]] = {
         "max_iterations": Key(int, check=positive),
         "rtol": Key(float, check=positive),
     },
-    "run": {"timeout_s": Key(float, 600.0, positive)},
+    "run": {
+        "timeout_s": Key(float, 600.0, positive),
+        # The sparse direct solver (freefem/effects.idp, LINEARSOLVER). MUMPS_seq is the
+        # fastest here at every level (results/bench/) and, unlike the built-in UMFPACK
+        # (32-bit indices), reaches h = 1/256.
+        "linear_solver": Key(str, "mumps", one_of(*LINEAR_SOLVERS)),
+    },
     "study": {
         "levels": Key(list, check=positive_ints),
         "slope_band": Key(list, check=increasing_pair),

@@ -11,6 +11,7 @@ from pathlib import Path
 from typing import Mapping
 
 from harness.layout import Layout
+from harness.schema import LINEAR_SOLVERS
 
 
 def effect_macro(effect: str) -> str:
@@ -24,8 +25,13 @@ def main_script(
     layout: Layout,
     element: str = "P1",
     macros: Mapping[str, str] | None = None,
+    linear_solver: str = "mumps",
 ) -> str:
     lines = ["// Written by the harness (harness/script.py); edit the scene, not this file."]
+    plugin, name = LINEAR_SOLVERS[linear_solver]
+    if plugin:
+        # Loading the plugin makes it FreeFEM's `sparsesolver`.
+        lines += [f'load "{plugin}"', "macro LINEARSOLVER sparsesolver //", f'string linearSolverName = "{name}";']
     lines += [f"macro {effect_macro(e)} 1 //" for e in effects]
     lines.append(f"macro ELEMENT {element} //")
     for name, body in (macros or {}).items():
