@@ -77,25 +77,57 @@ def scene_options(parameters: dict[str, dict[str, Any]], initial_guess: str) -> 
     return options + ["-scene.initial_guess", initial_guess]
 
 
-def invoke(argv: list[str], cwd: Path, timeout_s: float) -> Outcome:
-    """Run in `cwd` with stdout.txt / stderr.txt there; on timeout kill the whole process group."""
-    start = time.perf_counter()
-    with open(cwd / "stdout.txt", "wb") as out, open(cwd / "stderr.txt", "wb") as err:
-        try:
+@dataclass
+class Launched:
+    """A started FreeFEM process (stdout.txt / stderr.txt in its directory)."""
+
+    proc: subprocess.Popen
+    started: float  # time.perf_counter() at launch
+
+    def resume(self, line: str) -> float:
+        """Send one line to a process waiting on stdin (a pipelined start); the wall-clock
+        time (time.time()) it was sent. A process that already died is left to finish()."""
+        with contextlib.suppress(BrokenPipeError, OSError):
+            assert self.proc.stdin is not None
+            self.proc.stdin.write(line.encode() + b"\n")
+            self.proc.stdin.close()
+        return time.time()
+
+    def abandon(self) -> None:
+        """Kill the whole process group and reap it."""
+        if self.proc.returncode is None:
+            with contextlib.suppress(ProcessLookupError):
+                os.killpg(self.proc.pid, signal.SIGKILL)
+            self.proc.wait()
+
+
+def launch(argv: list[str], cwd: Path, waits_on_stdin: bool = False) -> Launched:
+    """Start FreeFEM in `cwd`, its own process group; stdin is a pipe when it will wait for a
+    line (Launched.resume), else empty."""
+    try:
+        with open(cwd / "stdout.txt", "wb") as out, open(cwd / "stderr.txt", "wb") as err:
             proc = subprocess.Popen(
                 argv, cwd=cwd, env=environment(), stdout=out, stderr=err,
-                stdin=subprocess.DEVNULL, start_new_session=True,
+                stdin=subprocess.PIPE if waits_on_stdin else subprocess.DEVNULL, start_new_session=True,
             )
-        except FileNotFoundError:
-            raise RunError(f"{BINARY} not found on PATH (`make test` or `make convergence` installs it)") from None
-        code, rss = None, float("nan")
-        try:
-            code, rss = wait_measured(proc, timeout_s)
-        finally:
-            if proc.returncode is None:  # timeout, or the caller was interrupted
-                os.killpg(proc.pid, signal.SIGKILL)
-                proc.wait()
-    return Outcome(code, time.perf_counter() - start, rss)
+    except FileNotFoundError:
+        raise RunError(f"{BINARY} not found on PATH (`make test` or `make convergence` installs it)") from None
+    return Launched(proc, time.perf_counter())
+
+
+def finish(launched: Launched, timeout_s: float) -> Outcome:
+    """Wait for a launched run (at most timeout_s from now, then kill its process group)."""
+    code, rss = None, float("nan")
+    try:
+        code, rss = wait_measured(launched.proc, timeout_s)
+    finally:
+        launched.abandon()  # only acts on a timeout, or when the caller was interrupted
+    return Outcome(code, time.perf_counter() - launched.started, rss)
+
+
+def invoke(argv: list[str], cwd: Path, timeout_s: float) -> Outcome:
+    """Run in `cwd` with stdout.txt / stderr.txt there; on timeout kill the whole process group."""
+    return finish(launch(argv, cwd), timeout_s)
 
 
 def wait_measured(proc: subprocess.Popen, timeout_s: float) -> tuple[int | None, float]:

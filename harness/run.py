@@ -67,30 +67,107 @@ def check_solver_files(scene: Scene, layout: Layout) -> None:
 def run_level(
     scene: Scene, mesh: Path, n: int, layout: Layout, force: bool = False, warm: WarmStart | None = None
 ) -> RunResult:
-    check_solver_files(scene, layout)
-    guess, start = start_of(scene, warm)
-    described = {**scene.run_inputs(), "start": guess}
-    if start:
-        described["start_state_sha256"] = sha256_bytes(start.state.read_bytes())
-    inputs = run_inputs(mesh, described, layout.freefem, freefem.freefem_version(), n)
-    final = layout.level_dir(scene.name, n)
-    cached = cached_result(final, inputs["key"], n)
-    if cached and not force:
-        return cached
-    work = final.with_name(f".tmp-n{n}-{uuid.uuid4().hex[:8]}")
-    work.mkdir(parents=True)
+    level = LevelRun(scene, mesh, n, layout, force)
+    return level.start(warm) or level.wait()
+
+
+class LevelRun:
+    """One level's run: reuse a cached result, or run FreeFEM in a temp dir and swap it in.
+
+    Pipelined (`launch_early`, for a level warm-started from the one below it): FreeFEM is
+    started before that coarser level has finished. It compiles the scheme, loads both
+    meshes and assembles the bulk (freefem/bulk.idp), then waits on stdin for the coarser
+    state (initial_guess.idp); start() sends it. The run's wall_s leaves out that wait
+    (measured from the mtime of the file `ready` FreeFEM writes when it begins waiting).
+    """
+
+    def __init__(self, scene: Scene, mesh: Path, n: int, layout: Layout, force: bool = False) -> None:
+        check_solver_files(scene, layout)
+        self.scene, self.mesh, self.n, self.layout, self.force = scene, mesh, n, layout, force
+        self.work: Path | None = None
+        self.launched: freefem.Launched | None = None
+        self.inputs: dict[str, Any] = {}
+        self.start_line: tuple[str, WarmStart | None] = ("", None)
+        self.resumed_at: float | None = None
+
+    def launch_early(self, coarser_mesh: Path) -> None:
+        """Start FreeFEM now; it will wait for the state of the run on `coarser_mesh`."""
+        self.work = self._new_work_dir()
+        self.launched = self._launch("file", WarmStart(coarser_mesh, Path("-")), waits=True)
+
+    def start(self, warm: WarmStart | None) -> RunResult | None:
+        """The cached result (and no run) if the inputs are unchanged, else None with the run
+        under way (wait() for it)."""
+        guess, start = start_of(self.scene, warm)
+        described = {**self.scene.run_inputs(), "start": guess}
+        if start:
+            described["start_state_sha256"] = sha256_bytes(start.state.read_bytes())
+        self.inputs = run_inputs(self.mesh, described, self.layout.freefem, freefem.freefem_version(), self.n)
+        self.start_line = (guess, start)
+        cached = cached_result(self.layout.level_dir(self.scene.name, self.n), self.inputs["key"], self.n)
+        if cached and not self.force:
+            self.abandon()
+            return cached
+        if self.launched is not None and start is not None and guess == "file":
+            self.resumed_at = self.launched.resume(str(start.state.resolve()))
+        else:
+            self.abandon()  # launched early for a start it will not get: run afresh
+            self.work = self._new_work_dir()
+            self.launched = self._launch(guess, start, waits=False)
+        return None
+
+    def wait(self) -> RunResult:
+        assert self.launched is not None and self.work is not None
+        work, scene, n = self.work, self.scene, self.n
+        try:
+            outcome = freefem.finish(self.launched, scene.timeout_s)
+            record = collect(work, scene, n, self.layout, outcome, *self.start_line)
+            if self.resumed_at is not None:
+                record["pipelined"] = True
+                record["waited_s"] = waited_s(work, self.resumed_at)
+                record["wall_s"] -= record["waited_s"]
+                write_atomic(work / "run.json", json.dumps(record, indent=2) + "\n")
+        except RunError:
+            keep_failed(work, self.layout.failed_dir(scene.name, n))
+            self.work = None
+            raise
+        except BaseException:
+            self.abandon()
+            raise
+        self.work = None
+        write_atomic(work / "inputs.json", json.dumps(self.inputs, indent=2, sort_keys=True) + "\n")
+        final = self.layout.level_dir(scene.name, n)
+        swap_in(work, final)
+        shutil.rmtree(self.layout.failed_dir(scene.name, n), ignore_errors=True)
+        return RunResult(n, final, record, reused=False)
+
+    def abandon(self) -> None:
+        """Kill a run that will not be waited for and remove its directory."""
+        if self.launched is not None:
+            self.launched.abandon()
+            self.launched = None
+        if self.work is not None:
+            shutil.rmtree(self.work, ignore_errors=True)
+            self.work = None
+
+    def _new_work_dir(self) -> Path:
+        final = self.layout.level_dir(self.scene.name, self.n)
+        work = final.with_name(f".tmp-n{self.n}-{uuid.uuid4().hex[:8]}")
+        work.mkdir(parents=True)
+        return work
+
+    def _launch(self, guess: str, start: WarmStart | None, waits: bool) -> freefem.Launched:
+        assert self.work is not None
+        argv = solver_command(self.work, self.scene, self.mesh.resolve(), self.n, self.layout, guess, start)
+        return freefem.launch(argv, self.work, waits_on_stdin=waits)
+
+
+def waited_s(work: Path, resumed_at: float) -> float:
+    """How long a pipelined run sat idle: from writing `ready` to receiving its start."""
     try:
-        record = solve_in(work, scene, mesh.resolve(), n, layout, guess, start)
-    except RunError:
-        keep_failed(work, layout.failed_dir(scene.name, n))
-        raise
-    except BaseException:
-        shutil.rmtree(work, ignore_errors=True)
-        raise
-    write_atomic(work / "inputs.json", json.dumps(inputs, indent=2, sort_keys=True) + "\n")
-    swap_in(work, final)
-    shutil.rmtree(layout.failed_dir(scene.name, n), ignore_errors=True)
-    return RunResult(n, final, record, reused=False)
+        return max(0.0, resumed_at - (work / "ready").stat().st_mtime)
+    except OSError:  # never got that far (it failed before), or was resumed before it was ready
+        return 0.0
 
 
 def cached_result(directory: Path, key: str, n: int) -> RunResult | None:
@@ -105,9 +182,11 @@ def cached_result(directory: Path, key: str, n: int) -> RunResult | None:
     return None
 
 
-def solve_in(
+def solver_command(
     work: Path, scene: Scene, mesh: Path, n: int, layout: Layout, guess: str, start: WarmStart | None
-) -> dict[str, Any]:
+) -> list[str]:
+    """Write main.edp into `work` and return FreeFEM's command line. A start state "-" is
+    read from stdin (a pipelined run)."""
     script = work / "main.edp"
     macros = {**scene_macros(scene, layout), **scene.reference_macros()}
     script.write_text(main_script(scene.material, scene.effects, layout, element=scene.element, macros=macros,
@@ -115,8 +194,16 @@ def solve_in(
     options = ["-mesh", str(mesh), "-out", str(work.resolve()), "-n", str(n)]
     options += freefem.scene_options(scene.solver_parameters(), guess)
     if start:
-        options += ["-init.mesh", str(start.mesh.resolve()), "-init.state", str(start.state.resolve())]
-    outcome = freefem.invoke(freefem.command(script, options), work, scene.timeout_s)
+        state = str(start.state) if str(start.state) == "-" else str(start.state.resolve())
+        options += ["-init.mesh", str(start.mesh.resolve()), "-init.state", state]
+    return freefem.command(script, options)
+
+
+def collect(
+    work: Path, scene: Scene, n: int, layout: Layout, outcome: freefem.Outcome, guess: str, start: WarmStart | None
+) -> dict[str, Any]:
+    """run.json of a finished run, with the harness's measurements; a RunError with the
+    reason if it failed."""
     where = f"{scene.name} n={n}"
     log = log_file(work, layout.failed_dir(scene.name, n))
     record = read_record(work)

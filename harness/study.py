@@ -20,7 +20,7 @@ from harness.layout import Layout
 from harness.mesh import build_mesh
 from harness.norms import error_norms
 from harness.rates import fitted_slope, pairwise_orders
-from harness.run import RunResult, WarmStart, check_solver_files, run_level
+from harness.run import LevelRun, RunResult, WarmStart, check_solver_files, run_level
 from harness.scene import Scene
 
 # Fields the error measure knows, in the order PROBLEM.md sums them (V, W, Q).
@@ -146,18 +146,37 @@ def run_chain(
     layout: Layout,
     force: bool,
     progress: Callable[[str], None],
+    pipelined: bool = True,
 ) -> dict[int, RunResult]:
-    """Coarsest first, each level started from the one below it: one branch, few iterations."""
+    """Coarsest first, each level started from the one below it: one branch, few iterations.
+
+    Pipelined (the default): while a level runs, the next one is already started (its
+    compilation, meshes and bulk assembly, freefem/bulk.idp) and waits for this level's
+    state: on two cores that setup leaves the critical path. Off for timing a level alone."""
     runs: dict[int, RunResult] = {}
+    levels = sorted(meshes)
     warm: WarmStart | None = None
-    for count, n in enumerate(sorted(meshes), start=1):
-        try:
-            runs[n] = run_level(scene, meshes[n], n, layout, force, warm)
-        except RunError:
-            progress(f"[{count}/{len(meshes)}] n={n} FAILED")
-            raise
-        progress(f"[{count}/{len(meshes)}] n={n} {describe(runs[n])}")
-        warm = WarmStart(meshes[n], runs[n].directory / "state.txt")
+    current = LevelRun(scene, meshes[levels[0]], levels[0], layout, force)
+    following: LevelRun | None = None
+    try:
+        for count, n in enumerate(levels, start=1):
+            cached = current.start(warm)
+            if count < len(levels):
+                following = LevelRun(scene, meshes[levels[count]], levels[count], layout, force)
+                if pipelined and cached is None:
+                    following.launch_early(meshes[n])
+            try:
+                runs[n] = cached or current.wait()
+            except RunError:
+                progress(f"[{count}/{len(levels)}] n={n} FAILED")
+                raise
+            progress(f"[{count}/{len(levels)}] n={n} {describe(runs[n])}")
+            warm = WarmStart(meshes[n], runs[n].directory / "state.txt")
+            current, following = following, None  # type: ignore[assignment]
+    finally:
+        for level in (current, following):
+            if level is not None:
+                level.abandon()
     return runs
 
 
