@@ -10,6 +10,10 @@ Measurements, each repeated:
            of runs, the error table), every level rerun, in a fresh results directory;
   cli      `python -m harness convergence CASE --force` as a process: the sweep plus
            Python's start-up, the report and the plot;
+  solvers  the finest level as `finest` measures it, once with each sparse direct solver
+           FreeFEM offers here (run.linear_solver): the measurement behind the default;
+  cold     the finest level alone from a zero initial guess, no chain below it: what a
+           user pays who solves only that level;
   startup  FreeFEM running an empty script.
 Ratios per repetition: sweep / finest level within that sweep, and newton_over_linear of
 the finest level (run.json: Newton wall time over one bulk assembly plus one
@@ -44,10 +48,12 @@ from harness.errors import HarnessError
 from harness.layout import REPO, Layout
 from harness.run import WarmStart, run_level
 from harness.scene import load_scene
+from harness.schema import LINEAR_SOLVERS
 from harness.study import run_chain, run_study
 
 GETFEM_FINEST_S = 11.6  # issue 5: GetFEM + SuperLU, 5 Newton iterations, h = 1/64
 DEFAULT_RESULTS = REPO / "results" / "bench"
+SOLVER_KEYS = ("wall_s", "first_factorisation_s", "solve_s", "newton_s", "gmres_iterations", "peak_rss_mb")
 FINEST_KEYS = ("wall_s", "total_s", "newton_s", "bulk_assembly_s", "first_factorisation_s", "factorisation_s",
                "solve_s", "output_s", "newton_over_linear", "newton_iterations", "gmres_iterations", "peak_rss_mb")
 
@@ -81,6 +87,28 @@ def bench_finest(case: Path, overrides: Sequence[str], levels: Sequence[int], la
         out.append({k: run.record.get(k) for k in FINEST_KEYS})
         say(f"finest n={finest} #{i + 1}: {run.record['wall_s']:.2f} s, "
             f"newton_over_linear {run.record.get('newton_over_linear', float('nan')):.2f}")
+    return out
+
+
+def bench_solvers(case: Path, overrides: Sequence[str], levels: Sequence[int], layout: Layout, repeats: int,
+                  say: Callable[[str], None]) -> dict[str, list[dict[str, Any]]]:
+    out = {}
+    for solver in LINEAR_SOLVERS:
+        samples = bench_finest(case, [*overrides, f'run.linear_solver="{solver}"'], levels, layout, repeats, say)
+        out[f"solver {solver}"] = [{k: s[k] for k in SOLVER_KEYS} for s in samples]
+    return out
+
+
+def bench_cold(case: Path, overrides: Sequence[str], levels: Sequence[int], layout: Layout, repeats: int,
+               say: Callable[[str], None]) -> list[dict[str, Any]]:
+    scene = load_scene(case, [*overrides, "scene.name=bench-cold", 'scene.initial_guess="zero"'])
+    finest = max(levels)
+    mesh, _ = timed_meshes(scene, [finest], layout)
+    out = []
+    for i in range(repeats):
+        run = run_level(scene, mesh[finest], finest, layout, force=True)
+        out.append({k: run.record.get(k) for k in FINEST_KEYS})
+        say(f"cold n={finest} #{i + 1}: {run.record['wall_s']:.2f} s, {run.record['newton_iterations']} Newton its")
     return out
 
 
@@ -168,7 +196,7 @@ def main(argv: Sequence[str] | None = None) -> int:
     top.add_argument("case", type=Path)
     top.add_argument("--levels", type=level_list, help="levels of the sweep (default: the case's)")
     top.add_argument("--repeats", type=int, default=5)
-    top.add_argument("--only", default="startup,finest,sweep,cli", help="comma-separated measurements")
+    top.add_argument("--only", default="startup,finest,solvers,cold,sweep,cli", help="comma-separated measurements")
     top.add_argument("--max-load", type=float, default=1.2, help="wait for a 1-min load below this")
     top.add_argument("--wait-s", type=float, default=1200, help="at most this long")
     top.add_argument("--set", dest="overrides", action="append", default=[], metavar="KEY=VALUE")
@@ -191,6 +219,10 @@ def main(argv: Sequence[str] | None = None) -> int:
             raw["startup"] = [{"freefem_empty_script_s": freefem_startup_s(1)} for _ in range(args.repeats)]
         if "finest" in wanted:
             raw["finest"] = bench_finest(args.case, args.overrides, levels, layout, args.repeats, say)
+        if "solvers" in wanted:
+            raw.update(bench_solvers(args.case, args.overrides, levels, layout, args.repeats, say))
+        if "cold" in wanted:
+            raw["cold"] = bench_cold(args.case, args.overrides, levels, layout, args.repeats, say)
         if "sweep" in wanted:
             raw["sweep"] = bench_sweep(args.case, args.overrides, levels, args.repeats, say)
         if "cli" in wanted:
@@ -200,11 +232,12 @@ def main(argv: Sequence[str] | None = None) -> int:
         print(f"error: {exc}", file=sys.stderr)
         return 2
     table = summarise(raw)
-    if "sweep" in raw and "finest" in raw:
-        finest = statistics.median(s["wall_s"] for s in raw["finest"])
-        sweeps = [s["sweep_s"] / finest for s in raw["sweep"]]
-        table = pd.concat([table, pd.DataFrame([{"measurement": "sweep", "quantity": "sweep_over_finest_alone",
-                                                 **spread(sweeps)}])], ignore_index=True)
+    for alone in ("finest", "cold"):
+        if "sweep" in raw and alone in raw:
+            finest = statistics.median(s["wall_s"] for s in raw[alone])
+            sweeps = [s["sweep_s"] / finest for s in raw["sweep"]]
+            table = pd.concat([table, pd.DataFrame([{"measurement": "sweep", "quantity": f"sweep_over_{alone}_alone",
+                                                     **spread(sweeps)}])], ignore_index=True)
     meta = {"repeats": args.repeats, "load_before": load_before, "load_after": load_after,
             "cpus": os.cpu_count(), "cpu": cpu_name(), "levels": list(levels),
             "freefem_version": freefem.freefem_version(), "getfem_finest_s": GETFEM_FINEST_S,

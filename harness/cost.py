@@ -19,7 +19,9 @@ are not used (a level as fine as the reference, or finer, has no meaningful erro
 
 Costs. `wall_s` is the FreeFEM process's wall time minus the error measurement it did
 for this study (reference_s); `chain_s` adds up mesh_s + wall_s over the chain up to the
-level: what a user pays to get that level's solution from nothing. `peak_rss_mb` is the
+level: what a user pays to get that level's solution from nothing. The chains run
+unpipelined (one FreeFEM at a time), so that no level's time includes another's
+contention for the cores. `peak_rss_mb` is the
 FreeFEM process's own high-water mark (VmHWM, freefem/memory.idp), read before the error
 measurement when there is one.
 """
@@ -373,7 +375,7 @@ def run_cost(
     ref_levels = sorted({n for n in levels if n < ref_n} | {ref_n})
     progress(f"reference: {ref_element} at n = {ref_n} (chain {ref_levels})")
     meshes, mesh_s = timed_meshes(ref_scene, ref_levels, layout)
-    ref_runs = run_chain(ref_scene, meshes, layout, force, progress)
+    ref_runs = run_chain(ref_scene, meshes, layout, force, progress, pipelined=False)
     ref_run = ref_runs[ref_n]
     ref_options = [
         f"reference.mesh={json.dumps(str(meshes[ref_n].resolve()))}",
@@ -391,7 +393,7 @@ def run_cost(
         disc_levels = [n for n in levels if n <= ref_n and not (n == ref_n and scene.element == ref_element)]
         progress(f"{name}: {disc.description}, levels {disc_levels}")
         meshes, mesh_s = timed_meshes(scene, disc_levels, layout, disc.grading)
-        runs = run_chain(scene, meshes, layout, force, progress)
+        runs = run_chain(scene, meshes, layout, force, progress, pipelined=False)
         rows += [row_of(base.name, name, scene.element, runs[n], mesh_s[n], startup) for n in disc_levels]
         norms = norms or reference_norms(runs[disc_levels[0]].record)
         if name == "P1":

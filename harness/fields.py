@@ -47,3 +47,21 @@ def planar(data: np.ndarray) -> np.ndarray:
     if data.ndim == 2 and data.shape[1] == 3:
         return data[:, :2]
     return data
+
+
+def read_state(path: Path) -> list[np.ndarray]:
+    """The full-precision state a run writes for warm starts (output.idp's state.txt): one
+    array of dof values per field present (u interleaved u1, u2; then phi; then theta), in
+    FreeFEM's stream format: each array's length, then its values."""
+    try:
+        tokens = np.array(path.read_text().split(), dtype=float)
+    except (OSError, ValueError) as exc:
+        raise FieldsError(f"cannot read state {path}: {exc}") from None
+    arrays, at = [], 0
+    while at < len(tokens):
+        size = int(tokens[at])
+        if size <= 0 or at + 1 + size > len(tokens):
+            raise FieldsError(f"{path}: truncated state (array of {size} values at token {at})")
+        arrays.append(tokens[at + 1: at + 1 + size])
+        at += 1 + size
+    return arrays
