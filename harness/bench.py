@@ -47,7 +47,7 @@ from harness.cost import freefem_startup_s, jsonable, level_list, timed_meshes
 from harness.errors import HarnessError
 from harness.layout import REPO, Layout
 from harness.run import WarmStart, run_level
-from harness.scene import load_scene
+from harness.scene import Scene, load_scene
 from harness.schema import LINEAR_SOLVERS
 from harness.study import run_chain, run_study
 
@@ -81,11 +81,17 @@ def bench_finest(case: Path, overrides: Sequence[str], levels: Sequence[int], la
     below = {n: p for n, p in meshes.items() if n < finest}
     runs = run_chain(scene, below, layout, False, lambda s: None) if below else {}
     warm = WarmStart(meshes[max(below)], runs[max(below)].directory / "state.txt") if below else None
+    return repeat_level(scene, meshes[finest], finest, layout, warm, repeats, "finest", say)
+
+
+def repeat_level(scene: Scene, mesh: Path, n: int, layout: Layout, warm: WarmStart | None, repeats: int,
+                 label: str, say: Callable[[str], None]) -> list[dict[str, Any]]:
+    """One level run `repeats` times, each rerun (force), alone: FINEST_KEYS of each run."""
     out = []
     for i in range(repeats):
-        run = run_level(scene, meshes[finest], finest, layout, force=True, warm=warm)
+        run = run_level(scene, mesh, n, layout, force=True, warm=warm)
         out.append({k: run.record.get(k) for k in FINEST_KEYS})
-        say(f"finest n={finest} #{i + 1}: {run.record['wall_s']:.2f} s, "
+        say(f"{label} n={n} #{i + 1}: {run.record['wall_s']:.2f} s, {run.record['newton_iterations']} Newton its, "
             f"newton_over_linear {run.record.get('newton_over_linear', float('nan')):.2f}")
     return out
 
@@ -104,12 +110,7 @@ def bench_cold(case: Path, overrides: Sequence[str], levels: Sequence[int], layo
     scene = load_scene(case, [*overrides, "scene.name=bench-cold", 'scene.initial_guess="zero"'])
     finest = max(levels)
     mesh, _ = timed_meshes(scene, [finest], layout)
-    out = []
-    for i in range(repeats):
-        run = run_level(scene, mesh[finest], finest, layout, force=True)
-        out.append({k: run.record.get(k) for k in FINEST_KEYS})
-        say(f"cold n={finest} #{i + 1}: {run.record['wall_s']:.2f} s, {run.record['newton_iterations']} Newton its")
-    return out
+    return repeat_level(scene, mesh[finest], finest, layout, None, repeats, "cold", say)
 
 
 def bench_sweep(case: Path, overrides: Sequence[str], levels: Sequence[int], repeats: int,

@@ -121,12 +121,8 @@ class LevelRun:
         work, scene, n = self.work, self.scene, self.n
         try:
             outcome = freefem.finish(self.launched, scene.timeout_s)
-            record = collect(work, scene, n, self.layout, outcome, *self.start_line)
-            if self.resumed_at is not None:
-                record["pipelined"] = True
-                record["waited_s"] = waited_s(work, self.resumed_at)
-                record["wall_s"] -= record["waited_s"]
-                write_atomic(work / "run.json", json.dumps(record, indent=2) + "\n")
+            waited = None if self.resumed_at is None else waited_s(work, self.resumed_at)
+            record = collect(work, scene, n, self.layout, outcome, *self.start_line, waited)
         except RunError:
             keep_failed(work, self.layout.failed_dir(scene.name, n))
             self.work = None
@@ -200,10 +196,11 @@ def solver_command(
 
 
 def collect(
-    work: Path, scene: Scene, n: int, layout: Layout, outcome: freefem.Outcome, guess: str, start: WarmStart | None
+    work: Path, scene: Scene, n: int, layout: Layout, outcome: freefem.Outcome, guess: str, start: WarmStart | None,
+    waited: float | None = None,
 ) -> dict[str, Any]:
-    """run.json of a finished run, with the harness's measurements; a RunError with the
-    reason if it failed."""
+    """run.json of a finished run, with the harness's measurements (a pipelined run's wall
+    time less its `waited` seconds); a RunError with the reason if it failed."""
     where = f"{scene.name} n={n}"
     log = log_file(work, layout.failed_dir(scene.name, n))
     record = read_record(work)
@@ -218,6 +215,8 @@ def collect(
     if not (work / "solution.vtu").is_file():
         raise RunError(f"{where}: FreeFEM wrote no solution.vtu (see {log})")
     record["wall_s"] = outcome.wall_s
+    if waited is not None:
+        record.update(pipelined=True, waited_s=waited, wall_s=outcome.wall_s - waited)
     # FreeFEM's own VmHWM (memory.idp); wait4's figure, which cannot read below the harness's
     # resident size at fork time, only where /proc is missing.
     own = record.get("peak_rss_mb", -1) > 0
