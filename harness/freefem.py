@@ -16,26 +16,16 @@ from dataclasses import dataclass
 from pathlib import Path
 from typing import Any
 
+from harness.contract import Failure
 from harness.errors import RunError
 
 BINARY = "FreeFem++"
 PLUGIN_PATH = "/usr/lib/freefem++"  # Debian's binary looks elsewhere for its plugins
 INFINITY = "1e300"  # FreeFEM's atof has no "inf"; 1e300 acts as unbounded for every knob
 
-EXIT_REASONS = {
-    1: "FreeFEM compile error",
-    2: "FreeFEM load error (a plugin is missing: is libfreefem++ installed?)",
-    3: "FreeFEM execution error",
-    4: "FreeFEM out of memory",
-    5: "FreeFEM mesh error",
-    6: "FreeFEM assertion failed",
-    7: "FreeFEM internal error",
-    8: "FreeFEM execution error",  # ErrorExec carries the UNKNOWN code in FreeFEM 4.9
-    10: "Newton diverged: no decrease of the residual in 5 steps (no solution near this start? try scene.coarsest_guess = pressed)",
-    11: "NaN/Inf in Newton",
-    12: "Newton hit its maximum number of iterations",
-    14: "invalid material",  # freefem/material.idp; its `error: material ...` line follows
-}
+# FreeFEM's exit code -> what it means (harness/contract.py, the one table).
+EXIT_REASONS = {f.code: f.text for f in Failure if f.code is not None}
+EXIT_REASONS[Failure.DIVERGED.code] += " (no solution near this start? try scene.coarsest_guess = pressed)"
 
 # The first line of FreeFEM's own report of what went wrong (it writes to stdout).
 ERROR_LINE = re.compile(r"error|assertion fail", re.IGNORECASE)

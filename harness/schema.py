@@ -10,8 +10,7 @@ import math
 from dataclasses import dataclass
 from typing import Any, Callable
 
-# Boundary roles and the integer labels FreeFEM sees (gmsh physical curve tags).
-ROLE_LABELS = {"clamped": 1, "loaded": 2, "free": 3, "contact": 4}
+from harness.contract import ROLE_LABELS  # noqa: F401  (re-exported: the roles a scene may name)
 
 # Sections passed verbatim to FreeFEM as `-<section>.<key> <value>`.
 SOLVER_SECTIONS = ("loads", "contact", "electric_contact", "thermal_contact", "newton")

@@ -10,6 +10,7 @@ from __future__ import annotations
 from pathlib import Path
 from typing import Mapping
 
+from harness.contract import contract_path
 from harness.layout import Layout
 from harness.schema import LINEAR_SOLVERS
 
@@ -38,7 +39,7 @@ def main_script(
         # "NAME (body)" would read as a macro with parameters; "NAME() (body)" is used bare.
         lines.append(f"macro {name}() ({body}) //")
     # FreeFEM's include takes a literal file name; nested includes resolve next to the includer.
-    includes: list[Path] = [layout.material_file(material)]
+    includes: list[Path] = [contract_path(), layout.material_file(material)]
     if layout.material_reduction_file().is_file():
         includes.append(layout.material_reduction_file())
     includes.append(layout.scheme_file())
