@@ -1,7 +1,7 @@
 """Manufactured solutions: from exact fields u*, phi*, theta* to the data that make them solve
 the model, derived symbolically (sympy) and written as FreeFEM expressions.
 
-The constitutive law is the plane-strain one of freefem/constitutive.idp (PROBLEM.md,
+The constitutive law is the plane-strain one of freefem/constitutive.idp (docs/model.md section 2,
 paper 2.1, 2.2, 2.6; axis 1 = x, axis 3 = y, engineering shear):
 
     sigma = F eps(u) + E^T grad(phi) - theta M

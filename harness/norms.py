@@ -1,4 +1,4 @@
-"""P1 transfer between meshes and the seminorms of PROBLEM.md, on the fine mesh.
+"""P1 transfer between meshes and the seminorms of docs/model.md section 7, on the fine mesh.
 
     ||v||_V^2 = int eps(v):eps(v),   ||xi||_W^2 = ||eta||_Q^2 = int |grad xi|^2
 

@@ -1,4 +1,4 @@
-"""The seminorms of PROBLEM.md and the coarse-to-fine P1 transfer, against known answers."""
+"""The seminorms of docs/model.md section 7 and the coarse-to-fine P1 transfer, against known answers."""
 
 from __future__ import annotations
 
