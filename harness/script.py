@@ -13,6 +13,7 @@ from typing import Mapping
 from harness.contract import contract_path
 from harness.layout import Layout
 from harness.schema import LINEAR_SOLVERS
+from harness.unknowns import Unknowns
 
 
 def effect_macro(effect: str) -> str:
@@ -35,6 +36,7 @@ def main_script(
         lines += [f'load "{plugin}"', "macro LINEARSOLVER sparsesolver //", f'string linearSolverName = "{name}";']
     lines += [f"macro {effect_macro(e)} 1 //" for e in effects]
     lines.append(f"macro ELEMENT {element} //")
+    lines += Unknowns(tuple(effects)).macros()
     for name, body in (macros or {}).items():
         # "NAME (body)" would read as a macro with parameters; "NAME() (body)" is used bare.
         lines.append(f"macro {name}() ({body}) //")
