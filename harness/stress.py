@@ -94,11 +94,11 @@ TOLERANCES: dict[str, tuple[float, str]] = {
     "sigma_tau": (1e-6, "|sigma_tau| = |P_B(c_nu u_tau)| <= S up to the nodal residual: the excess "
                         "over S relative to S + 1e-4 sigma_nu's scale, i.e. |sigma_tau| <= S (1 + 1e-6) "
                         "+ 1e-10 of the traction scale; measured <= 3.4e-9"),
-    "open_flux": (1e-6, "no flux where p_r = 0: the flux read at an open node (s <= 0) equals what "
-                        "the closed part of its support carries (2-point Gauss, a Gauss point of a "
-                        "segment to a closed neighbour can be closed) and is 0 when its support is "
-                        "open; relative to the largest nodal flux on Gamma_3 (floor: natural_fluxes); "
-                        "measured <= 2.3e-12"),
+    "open_flux": (1e-6, "no flux where p_r = 0: the flux read from the bulk at an open node (s <= 0) "
+                        "equals what the contact term of the residual puts there (checks.idp: 2-point "
+                        "Gauss, a Gauss point of a segment to a closed neighbour can be closed; 0 when "
+                        "its support is open; theta-Dirichlet nodes skipped in both); relative to the "
+                        "largest nodal flux on Gamma_3 (floor: natural_fluxes); measured <= 2.3e-12"),
     "heat": (1e-8, "heat in through Gamma_3 + sources = heat out through the Dirichlet boundary is "
                    "exact for a converged residual (the constant is a test function); relative to "
                    "the largest of the three (floor: natural_fluxes), with the force balance's "
