@@ -8,7 +8,8 @@ import sys
 from pathlib import Path
 from typing import Any, NoReturn, Sequence
 
-from harness.errors import HarnessError
+from harness.contract import ExitCode
+from harness.faults import check_results_root, guarded
 from harness.layout import Layout
 from harness.mesh import build_mesh
 from harness.report import format_table, write_report
@@ -16,8 +17,8 @@ from harness.run import WarmStart, check_solver_files, run_level
 from harness.scene import Scene, load_scene
 from harness.study import run_study
 
-EXIT_ERROR = 2  # an expected failure: bad input, failed run
-EXIT_OUT_OF_BAND = 1  # the study ran, but its slope leaves the case's band
+EXIT_ERROR = int(ExitCode.INPUT)  # a bad command line
+EXIT_OUT_OF_BAND = int(ExitCode.VERDICT)  # the study ran, but its slope leaves the case's band
 
 
 class Parser(argparse.ArgumentParser):
@@ -62,24 +63,22 @@ def parser() -> Parser:
 
 def main(argv: Sequence[str] | None = None) -> int:
     args = parser().parse_args(argv)
+    return guarded(lambda: dispatch(args))
+
+
+def dispatch(args: argparse.Namespace) -> int:
     layout = Layout(results=args.results, freefem=args.freefem)
-    try:
-        overrides = list(args.overrides)
-        if args.effects is not None:
-            names = [e.strip() for e in args.effects.split(",") if e.strip()]
-            overrides.append("scene.effects=" + repr(names).replace("'", '"'))
-        scene = load_scene(args.case, overrides)
-        for warning in scene.warnings:
-            print(f"warning: {warning}", file=sys.stderr)
-        if args.command == "solve":
-            return solve(scene, args.n, layout, args.force)
-        return convergence(scene, args.levels or scene.levels, layout, args.jobs, args.force)
-    except HarnessError as exc:
-        print(f"error: {exc}", file=sys.stderr)
-        return EXIT_ERROR
-    except KeyboardInterrupt:
-        print("error: interrupted", file=sys.stderr)
-        return 130
+    overrides = list(args.overrides)
+    if args.effects is not None:
+        names = [e.strip() for e in args.effects.split(",") if e.strip()]
+        overrides.append("scene.effects=" + repr(names).replace("'", '"'))
+    scene = load_scene(args.case, overrides)
+    for warning in scene.warnings:
+        print(f"warning: {warning}", file=sys.stderr)
+    check_results_root(layout.results)
+    if args.command == "solve":
+        return solve(scene, args.n, layout, args.force)
+    return convergence(scene, args.levels or scene.levels, layout, args.jobs, args.force)
 
 
 def solve(scene: Scene, n: int, layout: Layout, force: bool) -> int:
@@ -90,7 +89,7 @@ def solve(scene: Scene, n: int, layout: Layout, force: bool) -> int:
         for coarse in sorted(level for level in scene.levels if level < n):
             mesh = build_mesh(scene.geometry, coarse, layout.meshes_dir(scene.name))
             run = run_level(scene, mesh.path, coarse, layout, force, warm)
-            warm = WarmStart(mesh.path, run.directory / "state.txt")
+            warm = run.warm_start(mesh.path)
     mesh = build_mesh(scene.geometry, n, layout.meshes_dir(scene.name))
     result = run_level(scene, mesh.path, n, layout, force, warm)
     print(describe_run(scene.name, result.record, result.directory, result.reused))

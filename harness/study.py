@@ -171,7 +171,7 @@ def run_chain(
                 progress(f"[{count}/{len(levels)}] n={n} FAILED")
                 raise
             progress(f"[{count}/{len(levels)}] n={n} {describe(runs[n])}")
-            warm = WarmStart(meshes[n], runs[n].directory / "state.txt")
+            warm = runs[n].warm_start(meshes[n])
             current, following = following, None  # type: ignore[assignment]
     finally:
         for level in (current, following):
