@@ -9,7 +9,11 @@ from pathlib import Path
 from typing import Any, NoReturn, Sequence
 
 from harness.contract import ExitCode
+from harness.atomic import StudyTransaction
+from harness.errors import VerdictError
 from harness.faults import check_results_root, guarded
+from harness.guards import OVERRIDE_FLAG, check_memory, check_nested
+from harness.run_checks import failed_checks, print_checks
 from harness.layout import Layout
 from harness.mesh import build_mesh
 from harness.report import format_table, write_report
@@ -58,6 +62,8 @@ def parser() -> Parser:
         sub.add_argument("--force", action="store_true", help="rerun even if inputs are unchanged")
         sub.add_argument("--results", type=Path, default=Layout().results, help="results root")
         sub.add_argument("--freefem", type=Path, default=Layout().freefem, help="solver scripts")
+        sub.add_argument(OVERRIDE_FLAG, dest="ignore_memory", action="store_true",
+                         help="run a level even when its estimated memory exceeds what is available")
     return top
 
 
@@ -76,9 +82,14 @@ def dispatch(args: argparse.Namespace) -> int:
     for warning in scene.warnings:
         print(f"warning: {warning}", file=sys.stderr)
     check_results_root(layout.results)
+    levels = (args.n,) if args.command == "solve" else (args.levels or scene.levels)
+    if args.command == "convergence":
+        check_nested(levels)
+    if not args.ignore_memory:
+        check_memory(scene.geometry.width, scene.geometry.height, max(levels), scene.effects, scene.element)
     if args.command == "solve":
         return solve(scene, args.n, layout, args.force)
-    return convergence(scene, args.levels or scene.levels, layout, args.jobs, args.force)
+    return convergence(scene, levels, layout, args.jobs, args.force)
 
 
 def solve(scene: Scene, n: int, layout: Layout, force: bool) -> int:
@@ -93,13 +104,18 @@ def solve(scene: Scene, n: int, layout: Layout, force: bool) -> int:
     mesh = build_mesh(scene.geometry, n, layout.meshes_dir(scene.name))
     result = run_level(scene, mesh.path, n, layout, force, warm)
     print(describe_run(scene.name, result.record, result.directory, result.reused))
+    failed = failed_checks(print_checks(scene, [result]))
+    if failed:
+        raise VerdictError(f"{scene.name} n={n}: {failed}")
     return 0
 
 
 def convergence(scene: Scene, levels: tuple[int, ...], layout: Layout, jobs: int, force: bool) -> int:
-    study = run_study(scene, levels, layout, jobs, force)
-    paths = write_report(study, layout)
+    with StudyTransaction(layout.case_dir(scene.name)):
+        study = run_study(scene, levels, layout, jobs, force)
+        paths = write_report(study, layout)
     print(format_table(study))
+    failed = failed_checks(print_checks(scene, [study.runs[n] for n in sorted(study.runs)]))
     for name, fits in study.slopes.items():
         print(f"slope {name:>5}: {fits['all']:.3f} (all levels), {fits['window']:.3f} (window)")
     print(f"sweep wall time {study.wall_s:.1f} s; wrote {', '.join(str(p) for p in paths.values())}")
@@ -109,6 +125,8 @@ def convergence(scene: Scene, levels: tuple[int, ...], layout: Layout, jobs: int
               f"of {scene.source}", file=sys.stderr)
         return EXIT_OUT_OF_BAND
     print(f"total slope {study.total_slope:.3f} is inside the band [{low}, {high}]: pass")
+    if failed:
+        raise VerdictError(f"{scene.name}: {failed}")
     return 0
 
 

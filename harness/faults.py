@@ -16,6 +16,7 @@ from __future__ import annotations
 import contextlib
 import errno
 import os
+import shutil
 import sys
 import tempfile
 from pathlib import Path
@@ -110,3 +111,19 @@ def report(message: str, code: ExitCode) -> int:
     with contextlib.suppress(OSError):  # stderr itself may be gone (a closed terminal: SIGHUP)
         print(f"error: {message}", file=sys.stderr, flush=True)
     return int(code)
+
+
+# Below this many free bytes a failed write is taken for a full disk (a mesh or a level's
+# outputs at n = 16 are ~0.1-1 MB; a real disk that fails a write has ~0 left).
+FULL_DISK_BYTES = 1 << 20
+
+
+def disk_full(path: Path) -> bool:
+    """Whether the file system holding `path` (or its nearest existing parent) is full."""
+    for parent in [path, *path.parents]:
+        if parent.exists():
+            try:
+                return shutil.disk_usage(parent).free < FULL_DISK_BYTES
+            except OSError:
+                return False
+    return False

@@ -138,3 +138,23 @@ def in_forked_child() -> None:
         ctypes.CDLL(None, use_errno=True).prctl(pr_set_pdeathsig, signal.SIGKILL)
     if os.getppid() == 1:  # the parent died before prctl took effect
         os._exit(1)
+
+
+def track_pool(pool: object) -> list[int]:
+    """Register the worker processes of a started ProcessPoolExecutor (its `_processes`:
+    the executor has no public list of them) so a signal ends them too."""
+    pids = list(getattr(pool, "_processes", None) or {})
+    for pid in pids:
+        CHILDREN.add_pid(pid)
+    return pids
+
+
+def end_pool(pids: list[int]) -> None:
+    for pid in pids:
+        with contextlib.suppress(ProcessLookupError, PermissionError):
+            os.kill(pid, signal.SIGKILL)
+
+
+def untrack_pool(pids: list[int]) -> None:
+    for pid in pids:
+        CHILDREN.drop_pid(pid)
