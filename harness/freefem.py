@@ -18,7 +18,7 @@ from typing import Any
 
 from harness.contract import Failure
 from harness.errors import EnvironmentFault, RunError
-from harness.signals import CHILDREN
+from harness.signals import CHILDREN, Interrupted
 
 BINARY = "FreeFem++"
 PLUGIN_PATH = "/usr/lib/freefem++"  # Debian's binary looks elsewhere for its plugins
@@ -107,7 +107,11 @@ def launch(argv: list[str], cwd: Path, waits_on_stdin: bool = False) -> Launched
     except FileNotFoundError:
         raise EnvironmentFault(f"{BINARY} not found on PATH (`make test` or `make convergence` installs it)") from None
     CHILDREN.add_group(proc.pid)  # its own session: a signal to the harness does not reach it
-    return Launched(proc, time.perf_counter())
+    launched = Launched(proc, time.perf_counter())
+    if CHILDREN.signum is not None:  # a worker thread launching after the signal: end it at once
+        launched.abandon()
+        raise Interrupted(CHILDREN.signum)
+    return launched
 
 
 def finish(launched: Launched, timeout_s: float) -> Outcome:

@@ -13,7 +13,8 @@ from typing import Any
 from harness import freefem
 from harness.atomic import write_atomic
 from harness.cache import cached_record, run_inputs, sha256_file, write_checksums
-from harness.errors import RunError, SceneError
+from harness.errors import EnvironmentFault, RunError, SceneError
+from harness.faults import disk_full
 from harness.signals import CHILDREN, Interrupted
 from harness.layout import Layout
 from harness.mms import scene_macros
@@ -136,10 +137,13 @@ class LevelRun:
                 raise Interrupted(CHILDREN.signum)
             waited = None if self.resumed_at is None else waited_s(work, self.resumed_at)
             record = collect(work, scene, n, self.layout, outcome, *self.start_line, waited)
-        except RunError:
+        except RunError as exc:
             keep_failed(work, self.layout.failed_dir(scene.name, n))
             CHILDREN.drop_dir(work)
             self.work = None
+            if disk_full(work.parent):  # FreeFEM's writes failed for want of space, not the run itself
+                raise EnvironmentFault(f"no space left on the device for the outputs of {scene.name} n={n} "
+                                       f"in {work.parent} ({exc})") from None
             raise
         except BaseException:
             self.abandon()
