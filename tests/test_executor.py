@@ -1,0 +1,87 @@
+"""Studies on a real local Dask cluster (2 worker processes) against this machine: the same
+tables for levels 2-8 of two scenes, and a worker killed mid-study still ends complete and
+correct or with a clear error."""
+
+from __future__ import annotations
+
+import os
+import signal
+import threading
+from pathlib import Path
+
+import pytest
+
+from harness.errors import SceneError
+from harness.executor import Chain, LocalExecutor, executor, parse_cluster
+from harness.layout import Layout
+from harness.scene import load_scene
+from harness.study import error_table
+
+pytest.importorskip("distributed", reason="dask/distributed missing (the 'cluster' extra; `make test` installs it)")
+
+CASES = Path(__file__).parents[1] / "cases"
+SCENES = ("paper", "elastic")
+LEVELS = (2, 4, 8)
+
+
+def chains(results: Path) -> list[Chain]:
+    return [Chain(load_scene(CASES / f"{name}.toml"), LEVELS, Layout(results=results)) for name in SCENES]
+
+
+def tables(outcomes) -> dict[str, str]:
+    """Each scene's study table as CSV, less the wall times (which no two runs share)."""
+    out = {}
+    for outcome in outcomes:
+        assert outcome.error is None, outcome.error
+        assert sorted(outcome.runs) == list(LEVELS)
+        fields = tuple(outcome.runs[LEVELS[-1]].record["fields"])
+        out[outcome.chain.scene.name] = error_table(outcome.runs, fields).drop(columns=["wall_s"]).to_csv()
+    return out
+
+
+@pytest.fixture(scope="module")
+def local_tables(tmp_path_factory) -> dict[str, str]:
+    return tables(LocalExecutor(2).run(chains(tmp_path_factory.mktemp("local"))))
+
+
+def test_a_local_dask_cluster_gives_the_local_tables(local_tables, tmp_path):
+    lines: list[str] = []
+    with executor(1, cluster="local:2") as dask:
+        assert len(dask.client.scheduler_info()["workers"]) == 2
+        outcomes = dask.run(chains(tmp_path), lines.append)
+    assert tables(outcomes) == local_tables
+    assert len(lines) == len(SCENES) * len(LEVELS) and all("(Dask)" in line for line in lines)
+    # Every level was run by a worker into the shared results tree, nothing reused.
+    assert all((tmp_path / s / f"n{n}" / "run.json").is_file() for s in SCENES for n in LEVELS)
+
+
+def test_a_worker_killed_mid_study_ends_complete_or_with_a_clear_error(local_tables, tmp_path):
+    with executor(1, cluster="local:2") as dask:
+        pids = list(dask.client.run(os.getpid).values())
+        killed = threading.Event()
+
+        def kill_one(line: str) -> None:
+            if not killed.is_set():  # after the first level: the rest are queued or running
+                killed.set()
+                os.kill(pids[0], signal.SIGKILL)
+
+        outcomes = dask.run(chains(tmp_path), kill_one)
+    assert killed.is_set()
+    errors = [o.error for o in outcomes if o.error]
+    if not errors:  # the scheduler reran the lost tasks on the other (or restarted) worker
+        assert tables(outcomes) == local_tables
+    else:
+        assert all("\n" not in e and "n=" in e for e in errors), errors
+
+
+@pytest.mark.parametrize("text", ["local", "local:0", "remote:2", "local:x"])
+def test_cluster_flag_must_be_local_with_a_count(text):
+    with pytest.raises(SceneError, match="local:N"):
+        parse_cluster(text)
+    assert parse_cluster("local:3") == 3
+
+
+def test_scheduler_and_cluster_exclude_each_other():
+    with pytest.raises(SceneError, match="not both"):
+        with executor(1, scheduler="tcp://127.0.0.1:1", cluster="local:2"):
+            pass
