@@ -8,7 +8,12 @@ import sys
 from pathlib import Path
 from typing import Any, NoReturn, Sequence
 
-from harness.errors import HarnessError
+from harness.contract import ExitCode
+from harness.atomic import StudyTransaction
+from harness.errors import VerdictError
+from harness.faults import check_results_root, guarded
+from harness.guards import OVERRIDE_FLAG, check_memory, check_nested
+from harness.run_checks import failed_checks, print_checks
 from harness.layout import Layout
 from harness.mesh import build_mesh
 from harness.report import format_table, write_report
@@ -16,8 +21,8 @@ from harness.run import WarmStart, check_solver_files, run_level
 from harness.scene import Scene, load_scene
 from harness.study import run_study
 
-EXIT_ERROR = 2  # an expected failure: bad input, failed run
-EXIT_OUT_OF_BAND = 1  # the study ran, but its slope leaves the case's band
+EXIT_ERROR = int(ExitCode.INPUT)  # a bad command line
+EXIT_OUT_OF_BAND = int(ExitCode.VERDICT)  # the study ran, but its slope leaves the case's band
 
 
 class Parser(argparse.ArgumentParser):
@@ -57,29 +62,34 @@ def parser() -> Parser:
         sub.add_argument("--force", action="store_true", help="rerun even if inputs are unchanged")
         sub.add_argument("--results", type=Path, default=Layout().results, help="results root")
         sub.add_argument("--freefem", type=Path, default=Layout().freefem, help="solver scripts")
+        sub.add_argument(OVERRIDE_FLAG, dest="ignore_memory", action="store_true",
+                         help="run a level even when its estimated memory exceeds what is available")
     return top
 
 
 def main(argv: Sequence[str] | None = None) -> int:
     args = parser().parse_args(argv)
+    return guarded(lambda: dispatch(args))
+
+
+def dispatch(args: argparse.Namespace) -> int:
     layout = Layout(results=args.results, freefem=args.freefem)
-    try:
-        overrides = list(args.overrides)
-        if args.effects is not None:
-            names = [e.strip() for e in args.effects.split(",") if e.strip()]
-            overrides.append("scene.effects=" + repr(names).replace("'", '"'))
-        scene = load_scene(args.case, overrides)
-        for warning in scene.warnings:
-            print(f"warning: {warning}", file=sys.stderr)
-        if args.command == "solve":
-            return solve(scene, args.n, layout, args.force)
-        return convergence(scene, args.levels or scene.levels, layout, args.jobs, args.force)
-    except HarnessError as exc:
-        print(f"error: {exc}", file=sys.stderr)
-        return EXIT_ERROR
-    except KeyboardInterrupt:
-        print("error: interrupted", file=sys.stderr)
-        return 130
+    overrides = list(args.overrides)
+    if args.effects is not None:
+        names = [e.strip() for e in args.effects.split(",") if e.strip()]
+        overrides.append("scene.effects=" + repr(names).replace("'", '"'))
+    scene = load_scene(args.case, overrides)
+    for warning in scene.warnings:
+        print(f"warning: {warning}", file=sys.stderr)
+    check_results_root(layout.results)
+    levels = (args.n,) if args.command == "solve" else (args.levels or scene.levels)
+    if args.command == "convergence":
+        check_nested(levels)
+    if not args.ignore_memory:
+        check_memory(scene.geometry.width, scene.geometry.height, max(levels), scene.effects, scene.element)
+    if args.command == "solve":
+        return solve(scene, args.n, layout, args.force)
+    return convergence(scene, levels, layout, args.jobs, args.force)
 
 
 def solve(scene: Scene, n: int, layout: Layout, force: bool) -> int:
@@ -90,17 +100,22 @@ def solve(scene: Scene, n: int, layout: Layout, force: bool) -> int:
         for coarse in sorted(level for level in scene.levels if level < n):
             mesh = build_mesh(scene.geometry, coarse, layout.meshes_dir(scene.name))
             run = run_level(scene, mesh.path, coarse, layout, force, warm)
-            warm = WarmStart(mesh.path, run.directory / "state.txt")
+            warm = run.warm_start(mesh.path)
     mesh = build_mesh(scene.geometry, n, layout.meshes_dir(scene.name))
     result = run_level(scene, mesh.path, n, layout, force, warm)
     print(describe_run(scene.name, result.record, result.directory, result.reused))
+    failed = failed_checks(print_checks(scene, [result]))
+    if failed:
+        raise VerdictError(f"{scene.name} n={n}: {failed}")
     return 0
 
 
 def convergence(scene: Scene, levels: tuple[int, ...], layout: Layout, jobs: int, force: bool) -> int:
-    study = run_study(scene, levels, layout, jobs, force)
-    paths = write_report(study, layout)
+    with StudyTransaction(layout.case_dir(scene.name)):
+        study = run_study(scene, levels, layout, jobs, force)
+        paths = write_report(study, layout)
     print(format_table(study))
+    failed = failed_checks(print_checks(scene, [study.runs[n] for n in sorted(study.runs)]))
     for name, fits in study.slopes.items():
         print(f"slope {name:>5}: {fits['all']:.3f} (all levels), {fits['window']:.3f} (window)")
     print(f"sweep wall time {study.wall_s:.1f} s; wrote {', '.join(str(p) for p in paths.values())}")
@@ -110,6 +125,8 @@ def convergence(scene: Scene, levels: tuple[int, ...], layout: Layout, jobs: int
               f"of {scene.source}", file=sys.stderr)
         return EXIT_OUT_OF_BAND
     print(f"total slope {study.total_slope:.3f} is inside the band [{low}, {high}]: pass")
+    if failed:
+        raise VerdictError(f"{scene.name}: {failed}")
     return 0
 
 

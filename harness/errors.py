@@ -19,3 +19,11 @@ class RunError(HarnessError):
 
 class FieldsError(HarnessError):
     """A solution file is missing or lacks a field."""
+
+
+class EnvironmentFault(HarnessError):
+    """The machine, not the input: permissions, a full disk, a missing tool, too little memory."""
+
+
+class VerdictError(HarnessError):
+    """Everything ran, but a verdict failed: a physical check, a slope outside the band."""

@@ -17,7 +17,8 @@ from pathlib import Path
 from typing import Any
 
 from harness.contract import Failure
-from harness.errors import RunError
+from harness.errors import EnvironmentFault, RunError
+from harness.signals import CHILDREN, Interrupted
 
 BINARY = "FreeFem++"
 PLUGIN_PATH = "/usr/lib/freefem++"  # Debian's binary looks elsewhere for its plugins
@@ -25,7 +26,8 @@ INFINITY = "1e300"  # FreeFEM's atof has no "inf"; 1e300 acts as unbounded for e
 
 # FreeFEM's exit code -> what it means (harness/contract.py, the one table).
 EXIT_REASONS = {f.code: f.text for f in Failure if f.code is not None}
-EXIT_REASONS[Failure.DIVERGED.code] += " (no solution near this start? try scene.coarsest_guess = pressed)"
+# Said after "diverged" unless the run already started pressed (or from a pressed chain).
+PRESSED_HINT = " (no solution near this start? try scene.coarsest_guess = pressed)"
 
 # The first line of FreeFEM's own report of what went wrong (it writes to stdout).
 ERROR_LINE = re.compile(r"error|assertion fail", re.IGNORECASE)
@@ -89,6 +91,8 @@ class Launched:
             with contextlib.suppress(ProcessLookupError):
                 os.killpg(self.proc.pid, signal.SIGKILL)
             self.proc.wait()
+        # Only now: a child of the group may outlive its leader until the killpg above.
+        CHILDREN.drop_group(self.proc.pid)
 
 
 def launch(argv: list[str], cwd: Path, waits_on_stdin: bool = False) -> Launched:
@@ -101,8 +105,13 @@ def launch(argv: list[str], cwd: Path, waits_on_stdin: bool = False) -> Launched
                 stdin=subprocess.PIPE if waits_on_stdin else subprocess.DEVNULL, start_new_session=True,
             )
     except FileNotFoundError:
-        raise RunError(f"{BINARY} not found on PATH (`make test` or `make convergence` installs it)") from None
-    return Launched(proc, time.perf_counter())
+        raise EnvironmentFault(f"{BINARY} not found on PATH (`make test` or `make convergence` installs it)") from None
+    CHILDREN.add_group(proc.pid)  # its own session: a signal to the harness does not reach it
+    launched = Launched(proc, time.perf_counter())
+    if CHILDREN.signum is not None:  # a worker thread launching after the signal: end it at once
+        launched.abandon()
+        raise Interrupted(CHILDREN.signum)
+    return launched
 
 
 def finish(launched: Launched, timeout_s: float) -> Outcome:
@@ -151,7 +160,9 @@ def error_detail(log: str) -> str:
     return line[:200]
 
 
-def failure_reason(outcome: Outcome, timeout_s: float, detail: str) -> str:
+def failure_reason(outcome: Outcome, timeout_s: float, detail: str, pressed: bool = False) -> str:
+    """One line for a failed run; `pressed`: it started from the pressed guess (directly or
+    down a chain that did), so suggesting that start would be no help."""
     code = outcome.returncode
     if code is None:
         return f"timed out after {timeout_s:g} s (process group killed)"
@@ -161,6 +172,8 @@ def failure_reason(outcome: Outcome, timeout_s: float, detail: str) -> str:
         except ValueError:
             return f"killed by signal {-code}"
     reason = EXIT_REASONS.get(code, f"FreeFEM exited with code {code}")
+    if code == Failure.DIVERGED.code and not pressed:
+        reason += PRESSED_HINT
     return f"{reason}: {detail[:200]}" if detail else reason
 
 

@@ -14,7 +14,9 @@ import gmsh
 import numpy as np
 
 from harness.atomic import sibling_temp
-from harness.errors import MeshError
+from harness.errors import EnvironmentFault, MeshError
+from harness.faults import disk_full, fault
+from harness.guards import mesh_file_bytes, need_disk
 from harness.mesh_check import MeshSummary, check_mesh
 from harness.schema import ROLE_LABELS
 from harness.segments import Geometry
@@ -36,12 +38,23 @@ def build_mesh(geometry: Geometry, n: int, directory: Path) -> MeshSummary:
     cells = {} if unstructured else grid_cells(geometry, n)
     directory.mkdir(parents=True, exist_ok=True)
     target = mesh_path(directory, n)
+    need_disk(directory, mesh_file_bytes(geometry, n), f"the mesh of n={n}")
     tmp = sibling_temp(target).with_suffix(".msh")  # gmsh picks the format from the suffix
     try:
         write_with_gmsh(geometry, cells, n, tmp)
         summary = check_mesh(tmp, geometry, n)
         if not target.exists() or target.read_bytes() != tmp.read_bytes():
             os.replace(tmp, target)
+    except (MeshError, OSError, IndexError, ValueError, SystemExit) as exc:
+        # gmsh writes a truncated file on a full disk without a word, and meshio then raises
+        # IndexError or calls sys.exit(1): say which fault it was, in one line.
+        if disk_full(directory):
+            raise EnvironmentFault(f"no space left on the device for {target} (the mesh of n={n})") from None
+        if isinstance(exc, OSError):
+            raise fault(exc, f"mesh of n={n}") from None
+        if isinstance(exc, MeshError):
+            raise
+        raise MeshError(f"n={n}: the written mesh {target.name} is unreadable ({type(exc).__name__}: {exc})") from None
     finally:
         tmp.unlink(missing_ok=True)
     return replace(summary, path=target)

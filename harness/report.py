@@ -61,7 +61,9 @@ def summary(study: Study) -> dict[str, Any]:
         # The three terms carry different units; say which one dominates the sum.
         "share_of_total_at_finest": {f: finest[f"err_{f}"] / finest["err_total"] for f in study.fields},
         "sweep_wall_s": study.wall_s,
-        "runs": {str(n): {k: run.record.get(k) for k in RUN_FACTS} for n, run in sorted(study.runs.items())},
+        # Each level's cache key: a level dir whose inputs.json differs is not this study's run.
+        "runs": {str(n): {**{k: run.record.get(k) for k in RUN_FACTS}, "key": run.key}
+                 for n, run in sorted(study.runs.items())},
         "scene": study.scene.table,
         "tools": tool_versions(),
     }

@@ -12,8 +12,10 @@ from typing import Any
 
 from harness import freefem
 from harness.atomic import write_atomic
-from harness.cache import run_inputs, sha256_bytes
-from harness.errors import RunError, SceneError
+from harness.cache import cached_record, run_inputs, sha256_file, write_checksums
+from harness.errors import EnvironmentFault, RunError, SceneError
+from harness.faults import disk_full
+from harness.signals import CHILDREN, Interrupted
 from harness.layout import Layout
 from harness.mms import scene_macros
 from harness.scene import Scene
@@ -26,6 +28,7 @@ class WarmStart:
 
     mesh: Path
     state: Path
+    key: str | None = None  # the coarser run's cache key: stands for its state in this run's key
 
 
 def start_of(scene: Scene, warm: WarmStart | None) -> tuple[str, WarmStart | None]:
@@ -48,6 +51,11 @@ class RunResult:
     directory: Path
     record: dict[str, Any]  # run.json, plus the harness's wall_s
     reused: bool
+    key: str = ""  # the cache key it was run or reused under
+
+    def warm_start(self, mesh: Path) -> WarmStart:
+        """This run as the start of the next finer level."""
+        return WarmStart(mesh, self.directory / "state.txt", self.key or None)
 
     @property
     def solution(self) -> Path:
@@ -100,9 +108,13 @@ class LevelRun:
         under way (wait() for it)."""
         guess, start = start_of(self.scene, warm)
         described = {**self.scene.run_inputs(), "start": guess}
-        if start:
-            described["start_state_sha256"] = sha256_bytes(start.state.read_bytes())
-        self.inputs = run_inputs(self.mesh, described, self.layout.freefem, freefem.freefem_version(), self.n)
+        if start and start.key:
+            described["start_key"] = start.key
+        elif start:
+            described["start_state_sha256"] = sha256_file(start.state)
+        script, options = solver_inputs(self.scene, self.mesh, self.n, self.layout, guess, start)
+        self.inputs = run_inputs(self.mesh, described, self.layout.freefem, freefem.freefem_version(), self.n,
+                                 script, keyed_options(options), self.layout.material_file(self.scene.material))
         self.start_line = (guess, start)
         cached = cached_result(self.layout.level_dir(self.scene.name, self.n), self.inputs["key"], self.n)
         if cached and not self.force:
@@ -121,21 +133,29 @@ class LevelRun:
         work, scene, n = self.work, self.scene, self.n
         try:
             outcome = freefem.finish(self.launched, scene.timeout_s)
+            if CHILDREN.signum is not None:  # killed by the signal handler, not a failure of its own
+                raise Interrupted(CHILDREN.signum)
             waited = None if self.resumed_at is None else waited_s(work, self.resumed_at)
             record = collect(work, scene, n, self.layout, outcome, *self.start_line, waited)
-        except RunError:
+        except RunError as exc:
             keep_failed(work, self.layout.failed_dir(scene.name, n))
+            CHILDREN.drop_dir(work)
             self.work = None
+            if disk_full(work.parent):  # FreeFEM's writes failed for want of space, not the run itself
+                raise EnvironmentFault(f"no space left on the device for the outputs of {scene.name} n={n} "
+                                       f"in {work.parent} ({exc})") from None
             raise
         except BaseException:
             self.abandon()
             raise
-        self.work = None
         write_atomic(work / "inputs.json", json.dumps(self.inputs, indent=2, sort_keys=True) + "\n")
+        write_checksums(work)
         final = self.layout.level_dir(scene.name, n)
         swap_in(work, final)
+        CHILDREN.drop_dir(work)
+        self.work = None
         shutil.rmtree(self.layout.failed_dir(scene.name, n), ignore_errors=True)
-        return RunResult(n, final, record, reused=False)
+        return RunResult(n, final, record, reused=False, key=self.inputs["key"])
 
     def abandon(self) -> None:
         """Kill a run that will not be waited for and remove its directory."""
@@ -144,12 +164,14 @@ class LevelRun:
             self.launched = None
         if self.work is not None:
             shutil.rmtree(self.work, ignore_errors=True)
+            CHILDREN.drop_dir(self.work)
             self.work = None
 
     def _new_work_dir(self) -> Path:
         final = self.layout.level_dir(self.scene.name, self.n)
         work = final.with_name(f".tmp-n{self.n}-{uuid.uuid4().hex[:8]}")
         work.mkdir(parents=True)
+        CHILDREN.add_dir(work)  # removed on a signal, whichever thread owns it
         return work
 
     def _launch(self, guess: str, start: WarmStart | None, waits: bool) -> freefem.Launched:
@@ -167,31 +189,52 @@ def waited_s(work: Path, resumed_at: float) -> float:
 
 
 def cached_result(directory: Path, key: str, n: int) -> RunResult | None:
-    try:
-        stored = json.loads((directory / "inputs.json").read_text())
-        record = json.loads((directory / "run.json").read_text())
-    except (OSError, ValueError):
-        return None
-    usable = stored.get("key") == key and record.get("converged") is True
-    if usable and (directory / "solution.vtu").is_file():
-        return RunResult(n, directory, record, reused=True)
+    record = cached_record(directory, key)
+    if record is not None and (directory / "solution.vtu").is_file():
+        return RunResult(n, directory, record, reused=True, key=key)
     return None
+
+
+# Options that name files: their content is keyed (mesh, start), not where they are.
+PATH_OPTIONS = frozenset({"-mesh", "-out", "-init.mesh", "-init.state"})
+
+
+def keyed_options(options: list[str]) -> tuple[str, ...]:
+    out: list[str] = []
+    skip = False
+    for item in options:
+        if skip:
+            skip = False
+            continue
+        if item in PATH_OPTIONS:
+            skip = True
+            continue
+        out.append(item)
+    return tuple(out)
+
+
+def solver_inputs(
+    scene: Scene, mesh: Path, n: int, layout: Layout, guess: str, start: WarmStart | None, out: Path | None = None
+) -> tuple[str, list[str]]:
+    """main.edp's text and FreeFEM's options. A start state "-" is read from stdin (a pipelined run)."""
+    macros = {**scene_macros(scene, layout), **scene.reference_macros()}
+    text = main_script(scene.material, scene.effects, layout, element=scene.element, macros=macros,
+                       linear_solver=scene.linear_solver)
+    options = ["-mesh", str(mesh.resolve()), "-out", str(out.resolve() if out else "-"), "-n", str(n)]
+    options += freefem.scene_options(scene.solver_parameters(), guess)
+    if start:
+        state = str(start.state) if str(start.state) == "-" else str(start.state.resolve())
+        options += ["-init.mesh", str(start.mesh.resolve()), "-init.state", state]
+    return text, options
 
 
 def solver_command(
     work: Path, scene: Scene, mesh: Path, n: int, layout: Layout, guess: str, start: WarmStart | None
 ) -> list[str]:
-    """Write main.edp into `work` and return FreeFEM's command line. A start state "-" is
-    read from stdin (a pipelined run)."""
+    """Write main.edp into `work` and return FreeFEM's command line."""
     script = work / "main.edp"
-    macros = {**scene_macros(scene, layout), **scene.reference_macros()}
-    script.write_text(main_script(scene.material, scene.effects, layout, element=scene.element, macros=macros,
-                                  linear_solver=scene.linear_solver))
-    options = ["-mesh", str(mesh), "-out", str(work.resolve()), "-n", str(n)]
-    options += freefem.scene_options(scene.solver_parameters(), guess)
-    if start:
-        state = str(start.state) if str(start.state) == "-" else str(start.state.resolve())
-        options += ["-init.mesh", str(start.mesh.resolve()), "-init.state", state]
+    text, options = solver_inputs(scene, mesh, n, layout, guess, start, out=work)
+    script.write_text(text)
     return freefem.command(script, options)
 
 
@@ -206,7 +249,7 @@ def collect(
     record = read_record(work)
     if outcome.returncode != 0:
         detail = (record or {}).get("reason") or freefem.error_detail(read_logs(work))
-        reason = freefem.failure_reason(outcome, scene.timeout_s, str(detail))
+        reason = freefem.failure_reason(outcome, scene.timeout_s, str(detail), started_pressed(scene, guess))
         raise RunError(f"{where}: {reason} (see {log})")
     if record is None:
         raise RunError(f"{where}: FreeFEM wrote no readable run.json (see {log})")
@@ -227,6 +270,12 @@ def collect(
     record["started_from"] = guess if not start else f"file {start.state}"
     write_atomic(work / "run.json", json.dumps(record, indent=2) + "\n")
     return record
+
+
+def started_pressed(scene: Scene, guess: str) -> bool:
+    """Whether a run started from the pressed guess, itself or down a chain that did."""
+    chained = scene.initial_guess == "coarser" and scene.table["scene"].get("coarsest_guess") == "pressed"
+    return guess == "pressed" or chained
 
 
 def read_record(work: Path) -> dict[str, Any] | None:

@@ -117,10 +117,14 @@ def load_scene(path: Path, overrides: Iterable[str] = ()) -> Scene:
         raise SceneError(f"cannot read case file {path}: {exc}") from None
     except tomllib.TOMLDecodeError as exc:
         raise SceneError(f"malformed case file {path}: {exc}") from None
-    for item in overrides:
-        apply_override(raw, item)
-    table, warnings = resolve(raw)
-    return Scene(source=path, table=table, geometry=parse_geometry(table["geometry"]), warnings=warnings)
+    try:
+        for item in overrides:
+            apply_override(raw, item)
+        table, warnings = resolve(raw)
+        geometry = parse_geometry(table["geometry"])
+    except SceneError as exc:
+        raise SceneError(f"{path}: {exc}") from None  # every case-file error names the file
+    return Scene(source=path, table=table, geometry=geometry, warnings=warnings)
 
 
 def parse_value(text: str) -> Any:

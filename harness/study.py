@@ -13,6 +13,7 @@ from typing import Callable, Iterator, Mapping
 
 import pandas as pd
 
+from harness import signals
 from harness.errors import RunError
 from harness.fields import read_fields
 from harness.freefem import freefem_version
@@ -86,9 +87,11 @@ class BackgroundMeshes(Mapping[int, Path]):
     (and raises its MeshError)."""
 
     def __init__(self, scene: Scene, levels: tuple[int, ...], layout: Layout) -> None:
-        self._pool = ProcessPoolExecutor(max_workers=1, mp_context=multiprocessing.get_context("fork"))
+        self._pool = ProcessPoolExecutor(max_workers=1, mp_context=multiprocessing.get_context("fork"),
+                                         initializer=signals.in_forked_child)
         directory = layout.meshes_dir(scene.name)
         self._futures = {n: self._pool.submit(build_mesh, scene.geometry, n, directory) for n in sorted(levels)}
+        self._workers = signals.track_pool(self._pool)
 
     def __getitem__(self, n: int) -> Path:
         return self._futures[n].result().path
@@ -102,8 +105,11 @@ class BackgroundMeshes(Mapping[int, Path]):
     def __enter__(self) -> BackgroundMeshes:
         return self
 
-    def __exit__(self, *exc: object) -> None:
+    def __exit__(self, kind: type | None, *exc: object) -> None:
+        if kind is not None:  # a failure or a signal: do not wait for meshes nobody will use
+            signals.end_pool(self._workers)
         self._pool.shutdown(wait=True, cancel_futures=True)
+        signals.untrack_pool(self._workers)
 
 
 def run_all(
@@ -171,7 +177,7 @@ def run_chain(
                 progress(f"[{count}/{len(levels)}] n={n} FAILED")
                 raise
             progress(f"[{count}/{len(levels)}] n={n} {describe(runs[n])}")
-            warm = WarmStart(meshes[n], runs[n].directory / "state.txt")
+            warm = runs[n].warm_start(meshes[n])
             current, following = following, None  # type: ignore[assignment]
     finally:
         for level in (current, following):

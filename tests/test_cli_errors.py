@@ -1,5 +1,6 @@
-"""The command line: every expected failure is one `error:` line and exit code 2 (1 for a
-slope outside the band), and a failed run or study leaves earlier results untouched.
+"""The command line: every expected failure is one `error:` line and its exit code (2 bad
+input, 3 a failed run, 4 the environment, 1 a slope outside the band: harness/faults.py),
+and a failed run or study leaves earlier results untouched.
 FreeFEM itself runs, on the stand-in solver of tests/data/stub_freefem."""
 
 from __future__ import annotations
@@ -73,7 +74,7 @@ def test_freefem_missing_from_the_path(capsys, stub_layout, paper_case, monkeypa
         code, err, _ = solve(capsys, stub_layout, paper_case)
     finally:
         freefem.freefem_version.cache_clear()
-    assert code == 2
+    assert code == 4  # ENVIRONMENT: a missing tool (exit-code table, issue 14)
     one_error_line(err, "FreeFem++-not-installed not found")
 
 
@@ -105,7 +106,7 @@ def test_a_failed_run_is_one_line_and_keeps_the_good_result(capsys, stub_layout,
     good = stub_layout.level_dir("paper", 4)
     before = {p.name: p.read_bytes() for p in good.iterdir()}
     code, err, _ = solve(capsys, stub_layout, paper_case, "--set", f"scene.material={material}")
-    assert code == 2
+    assert code == 3  # RUN: a failed FreeFEM run (exit-code table, issue 14)
     one_error_line(err, "paper n=4: ", *words)
     assert {p.name: p.read_bytes() for p in good.iterdir()} == before
     failed = stub_layout.failed_dir("paper", 4)
@@ -116,7 +117,7 @@ def test_a_failed_run_is_one_line_and_keeps_the_good_result(capsys, stub_layout,
 def test_a_hung_run_is_killed_with_its_children_at_the_timeout(capsys, stub_layout, paper_case):
     start = time.monotonic()
     code, err, _ = solve(capsys, stub_layout, paper_case, "--set", "scene.material=Hang", "--set", "run.timeout_s=2")
-    assert code == 2 and time.monotonic() - start < 30  # the child would sleep 60 s
+    assert code == 3 and time.monotonic() - start < 30  # the child would sleep 60 s
     one_error_line(err, "timed out after 2 s")
     child = int((stub_layout.failed_dir("paper", 4) / "child.pid").read_text())
     deadline = time.monotonic() + 10  # the orphaned child is reaped by init, not instantly
@@ -143,7 +144,7 @@ def test_a_study_with_a_failed_level_leaves_the_previous_report(capsys, stub_lay
     report = stub_layout.case_dir("paper")
     before = {name: (report / name).read_bytes() for name in ("convergence.csv", "summary.json", "convergence.png")}
     code, err, _ = convergence(capsys, stub_layout, paper_case, "--set", "scene.material=Diverge")
-    assert code == 2
+    assert code == 3  # RUN
     one_error_line(err[-1:], "Newton diverged", "(+2 more failed levels)")
     assert all(line.startswith("[") and "FAILED" in line for line in err[:-1])
     assert {name: (report / name).read_bytes() for name in before} == before

@@ -1,0 +1,120 @@
+"""Guards before and after a run: levels must be nested, a level must fit in memory and on
+disk, and a solution must stay in the small-strain range the model assumes."""
+
+from __future__ import annotations
+
+import math
+import os
+from pathlib import Path
+
+import numpy as np
+
+from harness.errors import EnvironmentFault, SceneError
+
+# Peak resident memory per unknown of FreeFEM's run (P1, MUMPS): the largest measured ratio,
+# rounded up (results/cost/scaling.csv, peak_rss_mb / dofs: 1/64: 66,820 dofs 0.39 GB,
+# 5.8 kB; 1/128: 264,708 dofs 1.75 GB, 6.6 kB; 1/256: 1,053,700 dofs 6.43 GB, 6.1 kB). The
+# fixed start-up share (34 MB at n = 2) is inside that margin wherever the guard matters.
+BYTES_PER_DOF = 6.7e3
+BASE_BYTES = 0.0
+# MSH 2.2 text per mesh node: a node line (~60 characters) and two triangle lines (~30 each).
+MSH_BYTES_PER_NODE = 150
+# Largest displacement gradient (strain or rotation) the small-strain model is trusted at.
+SMALL_STRAIN = 0.01
+OVERRIDE_FLAG = "--ignore-memory-guard"
+
+
+def check_nested(levels: tuple[int, ...]) -> None:
+    """Refuse a level set whose meshes are not nested: the transfer between levels (the warm
+    start, and the error against the finest level) is exact only when each level's h is a
+    whole multiple of the next finer one's."""
+    ordered = sorted(set(levels))
+    for coarse, fine in zip(ordered, ordered[1:]):
+        if fine % coarse:
+            raise SceneError(f"levels {','.join(map(str, ordered))} are not nested: {fine} is not a multiple "
+                             f"of {coarse} (use levels that double, e.g. 2,4,8,16)")
+
+
+def unknowns_per_node(effects: tuple[str, ...]) -> int:
+    return 2 + ("piezoelectric" in effects) + ("thermal" in effects)
+
+
+def mesh_nodes(width: float, height: float, n: int, element: str = "P1") -> int:
+    """Nodes of the structured level n (P2: the vertices of the mesh twice as fine)."""
+    k = 2 * n if element == "P2" else n
+    return (math.ceil(width * k) + 1) * (math.ceil(height * k) + 1)
+
+
+def memory_estimate(width: float, height: float, n: int, effects: tuple[str, ...], element: str = "P1") -> tuple[int, float]:
+    """(dofs, peak bytes) of one level's FreeFEM run."""
+    dofs = unknowns_per_node(effects) * mesh_nodes(width, height, n, element)
+    return dofs, BASE_BYTES + BYTES_PER_DOF * dofs
+
+
+def available_memory() -> float:
+    """Bytes this process may still use: MemAvailable, or less under a cgroup limit."""
+    found = math.inf
+    try:
+        for line in Path("/proc/meminfo").read_text().splitlines():
+            if line.startswith("MemAvailable:"):
+                found = float(line.split()[1]) * 1024
+    except OSError:
+        pass
+    for limit, used in (("/sys/fs/cgroup/memory.max", "/sys/fs/cgroup/memory.current"),
+                        ("/sys/fs/cgroup/memory/memory.limit_in_bytes", "/sys/fs/cgroup/memory/memory.usage_in_bytes")):
+        try:
+            cap = Path(limit).read_text().strip()
+            if cap != "max":
+                found = min(found, float(cap) - float(Path(used).read_text()))
+        except (OSError, ValueError):
+            continue
+    return found
+
+
+def check_memory(width: float, height: float, n: int, effects: tuple[str, ...], element: str = "P1",
+                 available: float | None = None) -> None:
+    """Refuse, before meshing, a level whose estimated peak does not fit in the memory left."""
+    dofs, need = memory_estimate(width, height, n, effects, element)
+    have = available_memory() if available is None else available
+    if need > have:
+        raise EnvironmentFault(
+            f"level n={n} would need about {need / 1e9:.3g} GB ({dofs:,} dofs at {BYTES_PER_DOF / 1e3:.1f} kB each, "
+            f"measured) but {have / 1e9:.3g} GB is available; refusing before meshing ({OVERRIDE_FLAG} runs it anyway)")
+
+
+def mesh_file_bytes(geometry: object, n: int) -> int:
+    width, height = getattr(geometry, "width", 1.0), getattr(geometry, "height", 1.0)
+    return MSH_BYTES_PER_NODE * mesh_nodes(width, height, n)
+
+
+def need_disk(directory: Path, size: int, what: str) -> None:
+    """Refuse to start writing `what` (about `size` bytes) where it cannot fit."""
+    try:
+        stat = os.statvfs(directory)
+    except OSError:
+        return
+    free = stat.f_bavail * stat.f_frsize
+    if free < size:
+        raise EnvironmentFault(f"no space left on the device for {what} in {directory}: "
+                               f"about {size / 1e6:.3g} MB needed, {free / 1e6:.3g} MB free")
+
+
+def max_displacement_gradient(points: np.ndarray, triangles: np.ndarray, u: np.ndarray) -> float:
+    """Largest entry of grad u over P1 triangles (constant on each): a bound on both the
+    strain and the rotation."""
+    p = points[triangles][:, :, :2]
+    e1, e2 = p[:, 1] - p[:, 0], p[:, 2] - p[:, 0]
+    det = e1[:, 0] * e2[:, 1] - e1[:, 1] * e2[:, 0]
+    du = u[triangles][:, :, :2]
+    d1, d2 = du[:, 1] - du[:, 0], du[:, 2] - du[:, 0]
+    # grad u_i = [[e2y, -e1y], [-e2x, e1x]] / det applied to (d1_i, d2_i)
+    gx = (d1 * e2[:, 1:2] - d2 * e1[:, 1:2]) / det[:, None]
+    gy = (d2 * e1[:, 0:1] - d1 * e2[:, 0:1]) / det[:, None]
+    return float(max(np.abs(gx).max(initial=0.0), np.abs(gy).max(initial=0.0)))
+
+
+def small_strain_warning(gradient: float, where: str) -> str | None:
+    if gradient > SMALL_STRAIN:
+        return (f"{where}: max displacement gradient {gradient:.3g} (strain or rotation) exceeds {SMALL_STRAIN:g}: "
+                f"the small-strain model no longer holds")
+    return None

@@ -1,0 +1,91 @@
+"""The physical checks of every run, printed by `solve` and `convergence`, and the
+small-strain guard: a failed check makes the command's verdict fail (exit 1)."""
+
+from __future__ import annotations
+
+import sys
+from dataclasses import dataclass
+from typing import Any, Iterable
+
+from harness.errors import FieldsError, HarnessError
+from harness.fields import Fields, read_fields
+from harness.guards import max_displacement_gradient, small_strain_warning
+from harness.run import RunResult
+from harness.scene import Scene
+
+# Check flag -> the value(s) worth showing when it fails (harness/stress.py physical_checks).
+SHOWN = {
+    "force_ok": ("force_imbalance", "force_residual_bound"),
+    "sigma_nu_ok": ("max_sigma_nu", "sigma_nu_scale"),
+    "sigma_tau_ok": ("sigma_tau_excess",),
+    "open_flux_ok": ("heat_flux_open_error", "charge_flux_open_error"),
+    "heat_ok": ("heat_imbalance",),
+    "charge_ok": ("charge_imbalance",),
+}
+
+
+@dataclass(frozen=True)
+class Checked:
+    n: int
+    line: str  # what is printed for the level
+    passed: bool  # every check passed (or the solver reported none)
+    warnings: tuple[str, ...] = ()
+
+
+def check_run(scene: Scene, run: RunResult) -> Checked:
+    """Evaluate the checks of one converged run (the tolerances are stress.py's)."""
+    from harness.stress import CHECK_FLAGS, physical_checks  # its pandas import only when checking
+
+    record = run.record
+    fields = solution_fields(run)
+    warnings = []
+    if fields is not None and "u" in fields.values:
+        gradient = max_displacement_gradient(fields.points, fields.triangles, fields.field("u"))
+        warning = small_strain_warning(gradient, f"{scene.name} n={run.n}")
+        if warning:
+            warnings.append(warning)
+    if not record.get("checks"):
+        return Checked(run.n, f"checks n={run.n}: none reported by the solver", True, tuple(warnings))
+    try:
+        values = physical_checks(record, scene, fields)
+    except HarnessError:  # a geometry the flux reading does not cover: the strict form
+        values = physical_checks(record, scene, None)
+    failed = [flag for flag in CHECK_FLAGS if not values.get(flag)]
+    if not failed:
+        return Checked(run.n, f"checks n={run.n}: pass ({', '.join(f[:-3] for f in CHECK_FLAGS)})", True,
+                       tuple(warnings))
+    detail = "; ".join(f"{flag[:-3]} " + ", ".join(f"{k} {fmt(values.get(k))}" for k in SHOWN[flag])
+                       for flag in failed)
+    return Checked(run.n, f"checks n={run.n}: FAIL {detail}", False, tuple(warnings))
+
+
+def solution_fields(run: RunResult) -> Fields | None:
+    try:
+        return read_fields(run.solution)
+    except FieldsError:
+        return None
+
+
+def fmt(value: Any) -> str:
+    return f"{value:.3g}" if isinstance(value, float) else str(value)
+
+
+def print_checks(scene: Scene, runs: Iterable[RunResult]) -> list[Checked]:
+    """Print each run's checks (stdout) and warnings (stderr); the list, for the verdict."""
+    out = []
+    for run in runs:
+        checked = check_run(scene, run)
+        print(checked.line)
+        for warning in checked.warnings:
+            print(f"warning: {warning}", file=sys.stderr)
+        out.append(checked)
+    return out
+
+
+def failed_checks(checked: list[Checked]) -> str | None:
+    """The error line when any check failed, else None."""
+    bad = [c for c in checked if not c.passed]
+    if not bad:
+        return None
+    return (f"physical checks failed at n = {', '.join(str(c.n) for c in bad)} "
+            f"({bad[0].line.split('FAIL ', 1)[-1]})")

@@ -1,0 +1,393 @@
+"""Issue 14: one test per defect, each reproducing it and asserting the fix. Signals,
+environment faults, cache integrity, atomic studies, guards, checks on every run, and the
+smaller ones. Most run on the stand-in solver (tests/data/stub_freefem); the cache and
+check tests that need real states run FreeFEM at n = 2 and 4 (well under a second)."""
+
+from __future__ import annotations
+
+import contextlib
+import errno
+import json
+import os
+import shutil
+import signal
+import subprocess
+import sys
+import time
+from pathlib import Path
+from typing import Iterator
+
+import pytest
+
+from harness import atomic, cache, guards, stress
+from harness.cli import main
+from harness.layout import REPO, Layout
+
+STUB = REPO / "tests" / "data" / "stub_freefem"
+STUB_CASE = REPO / "tests" / "data" / "paper.toml"
+PAPER = REPO / "cases" / "paper.toml"
+
+
+def run(capsys, results: Path, *argv: str, freefem: Path = STUB) -> tuple[int, list[str], str]:
+    code = main([*argv, "--results", str(results), "--freefem", str(freefem)])
+    captured = capsys.readouterr()
+    return code, captured.err.strip().splitlines(), captured.out
+
+
+def error_lines(err: list[str]) -> list[str]:
+    return [line for line in err if line.startswith("error:")]
+
+
+def one_error(err: list[str], *words: str) -> str:
+    errors = error_lines(err)
+    assert len(errors) == 1 and not any("Traceback" in line for line in err), err
+    assert all(word in errors[0] for word in words), errors
+    return errors[0]
+
+
+# ---- 1, 3: signals end the whole process tree -------------------------------------------
+
+def harness_process(tmp_path: Path, *argv: str, new_session: bool = False) -> subprocess.Popen:
+    return subprocess.Popen(
+        [sys.executable, "-m", "harness", *argv, "--results", str(tmp_path / "results"), "--freefem", str(STUB)],
+        cwd=REPO, stdout=subprocess.PIPE, stderr=subprocess.PIPE, start_new_session=new_session,
+    )
+
+
+def descendants(root: int) -> set[int]:
+    """Every live process below `root` (FreeFEM runs sit in their own sessions, so by parent)."""
+    table = subprocess.run(["ps", "-eo", "pid=,ppid="], capture_output=True, text=True, check=True).stdout
+    children: dict[int, list[int]] = {}
+    for line in table.splitlines():
+        pid, ppid = map(int, line.split())
+        children.setdefault(ppid, []).append(pid)
+    found, todo = set(), [root]
+    while todo:
+        for child in children.get(todo.pop(), []):
+            found.add(child)
+            todo.append(child)
+    return found
+
+
+def alive(pid: int) -> bool:
+    stat = Path(f"/proc/{pid}/stat")
+    try:
+        return stat.read_text().split(")")[-1].split()[0] != "Z"
+    except OSError:
+        return False
+
+
+def wait_for(condition, timeout: float = 60.0) -> None:
+    deadline = time.monotonic() + timeout
+    while not condition():
+        assert time.monotonic() < deadline, "timed out waiting"
+        time.sleep(0.1)
+
+
+@pytest.mark.parametrize("signum", [signal.SIGTERM, signal.SIGHUP, signal.SIGINT])
+def test_a_signal_ends_the_process_tree_removes_temp_dirs_and_keeps_completed_levels(tmp_path, signum):
+    """Defect 1: the chain of levels 2, 4, 8 with n = 2 done, n = 4 hung in FreeFEM's child,
+    n = 8 launched early, the mesh worker alive; then the signal."""
+    proc = harness_process(tmp_path, "convergence", str(STUB_CASE), "--levels", "2,4,8",
+                           "--set", "scene.material=HangFine", "--set", "scene.initial_guess=coarser",
+                           "--set", "scene.coarsest_guess=zero")
+    case = tmp_path / "results" / "paper"
+    wait_for(lambda: any(case.glob(".tmp-n4-*/child.pid")))
+    tree = descendants(proc.pid)
+    assert len(tree) >= 3  # two FreeFEM runs and the hung child (the mesh worker when alive)
+    proc.send_signal(signum)
+    _, err = proc.communicate(timeout=30)
+    lines = err.decode().strip().splitlines()
+    assert proc.returncode == 130, lines
+    one_error(lines, "interrupted by " + signal.Signals(signum).name)
+    wait_for(lambda: not any(alive(pid) for pid in tree), timeout=10)
+    ps = subprocess.run(["ps", "-eo", "pid="], capture_output=True, text=True).stdout.split()
+    assert not [pid for pid in tree if str(pid) in ps and alive(pid)]
+    assert not list(case.glob(".tmp-*")) and not list(case.glob(".backup-*"))
+    done = case / "n2"  # completed before the signal: whole, with its checksums
+    assert cache.corrupted(done) is None and (done / "solution.vtu").is_file()
+
+
+def test_ctrl_c_to_the_whole_group_is_one_line(tmp_path):
+    """Defect 3: SIGINT to the process group (the terminal's Ctrl-C) reaches the mesh worker
+    and every run; no traceback from any of them."""
+    proc = harness_process(tmp_path, "convergence", str(STUB_CASE), "--levels", "2,4,8,16",
+                           "--set", "scene.material=Hang", new_session=True)
+    case = tmp_path / "results" / "paper"
+    wait_for(lambda: any(case.glob(".tmp-*/child.pid")))
+    os.killpg(proc.pid, signal.SIGINT)
+    _, err = proc.communicate(timeout=30)
+    assert proc.returncode == 130
+    one_error(err.decode().strip().splitlines(), "interrupted")
+
+
+def test_ctrl_c_during_start_up_is_one_line(tmp_path):
+    """Defect 3: SIGINT while the harness is still importing its modules."""
+    proc = harness_process(tmp_path, "convergence", str(STUB_CASE), "--set", "scene.name=r")
+    time.sleep(0.3)
+    proc.send_signal(signal.SIGINT)
+    _, err = proc.communicate(timeout=30)
+    assert proc.returncode == 130
+    one_error(err.decode().strip().splitlines(), "interrupted")
+
+
+# ---- 2: environment faults exit 4 with one line -------------------------------------------
+
+def test_a_file_as_the_results_path(capsys, tmp_path):
+    results = tmp_path / "passwd"
+    results.write_text("root:x:0:0\n")
+    code, err, _ = run(capsys, results, "solve", str(STUB_CASE), "--n", "2")
+    assert code == 4
+    one_error(err, str(results), "is a file")
+
+
+@contextlib.contextmanager
+def mounted_tmpfs(path: Path, options: str) -> Iterator[Path]:
+    """A tmpfs at `path` (root only; skips otherwise)."""
+    path.mkdir(parents=True, exist_ok=True)
+    if os.geteuid() != 0 or shutil.which("mount") is None:
+        pytest.skip("mounting a tmpfs needs root")
+    done = subprocess.run(["mount", "-t", "tmpfs", "-o", options, "tmpfs", str(path)], capture_output=True)
+    if done.returncode != 0:
+        pytest.skip(f"cannot mount a tmpfs: {done.stderr.decode().strip()}")
+    try:
+        yield path
+    finally:
+        subprocess.run(["umount", "-l", str(path)], check=False)
+
+
+def test_a_read_only_results_root(capsys, tmp_path):
+    """A read-only mount when root (root ignores the mode bits), else a directory without w."""
+    root = tmp_path / "ro"
+    if os.geteuid() == 0:
+        with mounted_tmpfs(root, "size=1m,ro"):
+            code, err, _ = run(capsys, root / "results", "solve", str(STUB_CASE), "--n", "2")
+    else:
+        root.mkdir()
+        root.chmod(0o555)
+        try:
+            code, err, _ = run(capsys, root / "results", "solve", str(STUB_CASE), "--n", "2")
+        finally:
+            root.chmod(0o755)
+    assert code == 4
+    one_error(err, str(root), "not writable")
+
+
+def test_a_full_disk_while_meshing_on_a_tiny_tmpfs(capsys, tmp_path):
+    """A real full disk: a 100 kB tmpfs holds the meshes up to n = 8, not n = 16's."""
+    with mounted_tmpfs(tmp_path / "full", "size=100k") as disk:
+        code, err, _ = run(capsys, disk / "results", "convergence", str(STUB_CASE), "--levels", "2,4,8,16,32")
+        assert code == 4
+        one_error(err, "no space left on the device")
+        assert not list((disk / "results" / "paper").glob(".tmp-*"))
+
+
+def test_a_full_disk_while_meshing_monkeypatched(capsys, tmp_path, monkeypatch):
+    """The same without root: gmsh leaves a truncated file (as it does on a full disk, without
+    a word) and the disk reports no space left."""
+    from harness import faults, mesh
+
+    real = mesh.write_with_gmsh
+
+    def truncated(geometry, cells, n, target):
+        real(geometry, cells, n, target)
+        target.write_bytes(target.read_bytes()[: len(target.read_bytes()) // 2])
+
+    monkeypatch.setattr(mesh, "write_with_gmsh", truncated)
+    monkeypatch.setattr(faults, "FULL_DISK_BYTES", shutil.disk_usage(tmp_path).free * 2)
+    code, err, _ = run(capsys, tmp_path / "results", "solve", str(STUB_CASE), "--n", "4")
+    assert code == 4
+    one_error(err, "no space left on the device", "mesh_n")
+
+
+def test_a_full_disk_while_writing_the_report_keeps_the_earlier_one(capsys, tmp_path, monkeypatch):
+    """ENOSPC from the report writer (monkeypatched): exit 4, one line, the earlier study whole."""
+    from harness import report
+
+    assert run(capsys, tmp_path / "results", "convergence", str(STUB_CASE), "--levels", "2,4,8")[0] == 0
+    case = tmp_path / "results" / "paper"
+    before = {p.name: p.read_bytes() for p in case.iterdir() if p.is_file()}
+
+    def full(study, path):
+        raise OSError(errno.ENOSPC, os.strerror(errno.ENOSPC), str(path))
+
+    monkeypatch.setattr(report, "plot_convergence", full)
+    code, err, _ = run(capsys, tmp_path / "results", "convergence", str(STUB_CASE), "--levels", "2,4,8",
+                       "--set", "loads.traction_y=-3")
+    assert code == 4
+    one_error(err, "no space left on the device")
+    assert {p.name: p.read_bytes() for p in case.iterdir() if p.is_file()} == before
+    assert atomic.mixed_levels(case) == []
+
+
+# ---- 4, 6, cache keys ----------------------------------------------------------------------
+
+def test_a_change_to_the_generated_script_is_a_cache_miss(capsys, tmp_path, monkeypatch):
+    """Defect 4: a harness change that drops a line of main.edp must not reuse the old runs."""
+    from harness import run as run_module
+
+    assert run(capsys, tmp_path, "solve", str(STUB_CASE), "--n", "4")[0] == 0
+    real = run_module.main_script
+
+    def without_friction(*args, **kwargs):
+        return "\n".join(line for line in real(*args, **kwargs).splitlines() if "effFriction" not in line) + "\n"
+
+    monkeypatch.setattr(run_module, "main_script", without_friction)
+    code, _, out = run(capsys, tmp_path, "solve", str(STUB_CASE), "--n", "4")
+    assert code == 0 and "[reused]" not in out
+    assert "effFriction" not in (tmp_path / "paper" / "n4" / "main.edp").read_text()
+
+
+def test_the_key_covers_the_input_writing_code(tmp_path):
+    assert {"harness.script", "harness.run", "harness.freefem"} <= set(cache.code_digests())
+
+
+def test_adding_a_material_invalidates_only_the_runs_that_use_it(tmp_path):
+    """Defect 10: a new material file leaves the key of a run on another material alone."""
+    solver = tmp_path / "freefem"
+    shutil.copytree(STUB, solver)
+    used = solver / "materials" / "BaTiO3.idp"
+    before = cache.source_digests(solver, used)
+    (solver / "materials" / "New.idp").write_text("// another material\n")
+    assert cache.source_digests(solver, used) == before
+    used.write_text(used.read_text() + "// edited\n")
+    assert cache.source_digests(solver, used) != before
+
+
+def test_a_truncated_state_is_rerun_with_a_warning_and_the_level_above_is_kept(capsys, tmp_path):
+    """Defect 6 with real FreeFEM: truncate n2's state; n2 reruns with one warning line, and
+    n4, n8 (keyed by the coarser level's key, not by its state's bytes) are reused."""
+    argv = ("convergence", str(PAPER), "--levels", "2,4,8", "--set", "study.slope_band=[0, 100]")
+    assert run(capsys, tmp_path, *argv, freefem=REPO / "freefem")[0] == 0
+    state = tmp_path / "paper" / "n2" / "state.txt"
+    with open(state, "r+b") as f:
+        f.truncate(1000)
+    code, err, _ = run(capsys, tmp_path, *argv, freefem=REPO / "freefem")
+    assert code == 0, err
+    warnings = [line for line in err if line.startswith("warning:")]
+    assert len(warnings) == 1 and "n2: state.txt does not match its checksum" in warnings[0]
+    assert any("n=2 done" in line for line in err)
+    assert any("n=4 reused" in line for line in err) and any("n=8 reused" in line for line in err)
+    assert cache.corrupted(tmp_path / "paper" / "n2") is None
+
+
+# ---- 5: atomic studies ---------------------------------------------------------------------
+
+def test_a_failed_study_leaves_the_earlier_complete_study(capsys, tmp_path):
+    """Defect 5: a second study whose n = 2 succeeds and n = 4 times out; the scene dir must
+    hold the first study's runs and summary, consistent by their keys."""
+    argv = ("convergence", str(STUB_CASE), "--levels", "2,4,8")
+    assert run(capsys, tmp_path, *argv)[0] == 0
+    case = tmp_path / "paper"
+    keys = {n: cache.stored_key(case / f"n{n}") for n in (2, 4, 8)}
+    summary = (case / "summary.json").read_text()
+    code, err, _ = run(capsys, tmp_path, *argv, "--set", "scene.material=HangFine", "--set", "run.timeout_s=2",
+                       "--set", "scene.initial_guess=coarser")
+    assert code == 3
+    one_error(err, "timed out")
+    assert {n: cache.stored_key(case / f"n{n}") for n in (2, 4, 8)} == keys
+    assert (case / "summary.json").read_text() == summary
+    assert atomic.mixed_levels(case) == []
+    assert all(run["key"] for run in json.loads(summary)["runs"].values())
+
+
+def test_a_mix_is_detected_from_the_keys(capsys, tmp_path):
+    assert run(capsys, tmp_path, "convergence", str(STUB_CASE), "--levels", "2,4,8")[0] == 0
+    assert run(capsys, tmp_path, "solve", str(STUB_CASE), "--n", "2", "--set", "loads.traction_y=-7")[0] == 0
+    assert atomic.mixed_levels(tmp_path / "paper") == [2]
+
+
+def test_a_backup_left_by_a_killed_harness_is_restored(capsys, tmp_path):
+    assert run(capsys, tmp_path, "convergence", str(STUB_CASE), "--levels", "2,4,8")[0] == 0
+    case = tmp_path / "paper"
+    key = cache.stored_key(case / "n2")
+    dead = case / f"{atomic.BACKUP_PREFIX}999999999-deadbeef"  # no such pid
+    shutil.copytree(case / "n2", dead / "n2")
+    shutil.rmtree(case / "n2")
+    with atomic.StudyTransaction(case):
+        pass
+    assert cache.stored_key(case / "n2") == key and not dead.exists()
+
+
+# ---- 7, 10: guards -------------------------------------------------------------------------
+
+def test_the_memory_estimate_matches_the_measured_levels():
+    """An upper bound of the measured peaks (results/cost/scaling.csv), within 20 %."""
+    effects = ("piezoelectric", "thermal")
+    for n, dofs, gb in ((64, 66_820, 0.39), (128, 264_708, 1.75), (256, 1_053_700, 6.43)):
+        estimated_dofs, need = guards.memory_estimate(4.0, 1.0, n, effects)
+        assert estimated_dofs == dofs
+        assert gb <= need / 1e9 <= 1.2 * gb
+
+
+def test_a_level_that_cannot_fit_is_refused_before_meshing(capsys, tmp_path):
+    """Defect 7: n = 4096 would need terabytes: refused with the estimate and the override."""
+    code, err, _ = run(capsys, tmp_path, "solve", str(PAPER), "--n", "4096", freefem=REPO / "freefem")
+    assert code == 4
+    one_error(err, "n=4096", "GB", "268,517,380 dofs", guards.OVERRIDE_FLAG)
+    assert not (tmp_path / "paper").exists()
+
+
+def test_non_nested_levels_are_refused(capsys, tmp_path):
+    """Defect 10: levels 2, 3, 4 are not nested."""
+    code, err, _ = run(capsys, tmp_path, "convergence", str(STUB_CASE), "--levels", "2,3,4")
+    assert code == 2
+    one_error(err, "not nested", "3 is not a multiple of 2")
+    assert not (tmp_path / "paper").exists()
+
+
+def test_a_large_strain_is_warned_about(capsys, tmp_path):
+    """Defect 10: the stub's u2 = 1e-5 traction_y cos(y) x: at 1e4 N/m^2 a gradient up to 0.34."""
+    code, err, _ = run(capsys, tmp_path, "solve", str(STUB_CASE), "--n", "4", "--set", "loads.traction_y=-1e4")
+    assert code == 0
+    warnings = [line for line in err if "small-strain" in line]
+    assert len(warnings) == 1 and "gradient 0.306" in warnings[0]  # max of 0.1 x sin(y) over the P1 triangles
+
+
+def test_the_displacement_gradient_of_a_linear_field_is_exact():
+    import numpy as np
+
+    points = np.array([[0.0, 0.0], [1.0, 0.0], [0.0, 1.0], [1.0, 1.0]])
+    triangles = np.array([[0, 1, 2], [1, 3, 2]])
+    u = np.column_stack([0.02 * points[:, 0], -0.03 * points[:, 1]])
+    assert guards.max_displacement_gradient(points, triangles, u) == pytest.approx(0.03)
+
+
+# ---- 9: checks on every run ----------------------------------------------------------------
+
+def test_solve_prints_the_checks_and_a_failed_check_exits_1(capsys, tmp_path, monkeypatch):
+    """Defect 9 with real FreeFEM at n = 2: the checks are printed; with the charge balance's
+    tolerance made impossible (monkeypatched), the command fails with the verdict code."""
+    code, err, out = run(capsys, tmp_path, "solve", str(PAPER), "--n", "2", freefem=REPO / "freefem")
+    assert code == 0 and "checks n=2: pass" in out, err
+    monkeypatch.setitem(stress.TOLERANCES, "charge", (-1.0, "impossible, for the test"))
+    code, err, out = run(capsys, tmp_path, "solve", str(PAPER), "--n", "2", freefem=REPO / "freefem")
+    assert code == 1 and "checks n=2: FAIL charge" in out
+    one_error(err, "physical checks failed at n = 2", "charge")
+
+
+# ---- 10: smaller ones ----------------------------------------------------------------------
+
+@pytest.mark.parametrize("guess, hinted", [("zero", True), ("pressed", False)])
+def test_the_diverged_message_suggests_pressed_only_when_not_in_use(capsys, tmp_path, guess, hinted):
+    code, err, _ = run(capsys, tmp_path, "solve", str(STUB_CASE), "--n", "4", "--set", "scene.material=Diverge",
+                       "--set", f"scene.initial_guess={guess}")
+    assert code == 3
+    line = one_error(err, "Newton diverged")
+    assert ("coarsest_guess = pressed" in line) == hinted
+
+
+def test_a_case_file_error_names_the_file(capsys, tmp_path):
+    case = tmp_path / "mine.toml"
+    case.write_text(STUB_CASE.read_text().replace("[scene]", "[scene]\nbogus = 1", 1))
+    code, err, _ = run(capsys, tmp_path, "solve", str(case), "--n", "2")
+    assert code == 2
+    one_error(err, str(case), "bogus")
+
+
+def test_every_exit_code_is_in_the_readme():
+    from harness.contract import ExitCode
+
+    readme = (REPO / "README.md").read_text()
+    for code in ExitCode:
+        assert f"| {code.value} | `{code.name}` |" in readme
