@@ -138,14 +138,16 @@ def test_each_case_is_hard_the_way_its_header_says(suite):
 
 def test_paper_scene_iterations_do_not_grow_with_refinement(tmp_path):
     """Each level from the coarser one: a few iterations per level, not growing (measured
-    6, 4, 4, 4 at n = 2 ... 16 and 4, 3 at 32, 64); from zero they grow (6, 10, 17, 19)."""
+    4, 4, 4, 3 at n = 2 ... 16 and 3, 3 at 32, 64). From zero, issue 14 asks for at most 6
+    at every level: measured 4 at every n = 2 ... 64 with the natural monotonicity test
+    (line_search.idp); with backtracking on ||R|| it was 5, 9, 16, 18, 19, 19."""
     table = stress.paper_iterations(Layout(results=tmp_path), (2, 4, 8, 16))
     chain = table[table["start"] == "coarser"].set_index("n")["newton_iterations"]
     zero = table[table["start"] == "zero"].set_index("n")["newton_iterations"]
     assert (table["status"] == "converged").all()
     assert chain.loc[[4, 8, 16]].max() <= 5
     assert chain[16] <= chain[4]
-    assert zero[16] > zero[4] > chain[4]  # the warm start is what keeps the count flat
+    assert zero.max() <= 6
 
 
 # ---- the classification and the checks, without FreeFEM ----------------------------------
