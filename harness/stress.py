@@ -252,6 +252,9 @@ def natural_fluxes(scene: Scene) -> dict[str, float]:
 
 
 FLOOR = 1e-10  # of natural_fluxes (times |Gamma_3| for a total): "no flux at all"
+# W/m or C/m: a floor of the balance scale, 23 decades below the smallest flow that passes
+# in the suite (4.7e-7 C/m), so a 0/0 is not a failure.
+NOTHING_FLOWS = 1e-30
 
 
 def force_residual_bound(record: dict[str, Any]) -> float:
@@ -293,8 +296,12 @@ def physical_checks(record: dict[str, Any], scene: Scene, fields: Fields | None)
              "charge": (record.get("charge_in_contact", 0.0), c.get("charge_source", 0.0), c.get("charge_out_dirichlet", 0.0))}
     for name, (into, source, leaving) in flows.items():
         # FreeFEM's {name}_imbalance, with a floor for a contact that carries nothing.
-        scale = max(abs(into), abs(source), abs(leaving), FLOOR * natural[name] * length, 1e-300)
+        scale = max(abs(into), abs(source), abs(leaving), FLOOR * natural[name] * length, NOTHING_FLOWS)
         out[f"{name}_imbalance"] = abs(into + source - leaving) / scale
+        # Nothing drives this flow (no conductance drive, no source: `block`'s phi_f = theta_f = 0,
+        # `heated`'s charge, `heat` without a contact part): the exact flow is zero and every term round-off of the bulk flux,
+        # whose size run.json does not give; the balance then has nothing to compare with.
+        out[f"{name}_driven"] = natural[name] * length > 0 or abs(source) > 0
     # Without the fields, the strict form: no open node carries any flux.
     legit = open_node_fluxes(scene, fields) if fields is not None else {"heat": 0.0, "charge": 0.0}
     open_ok = True
@@ -310,8 +317,8 @@ def physical_checks(record: dict[str, Any], scene: Scene, fields: Fields | None)
         "sigma_nu_ok": out["max_sigma_nu"] <= tol["sigma_nu"] * sigma_scale,
         "sigma_tau_ok": out["sigma_tau_excess"] <= tol["sigma_tau"],
         "open_flux_ok": bool(open_ok),
-        "heat_ok": out["heat_imbalance"] <= tol["heat"],
-        "charge_ok": out["charge_imbalance"] <= tol["charge"],
+        "heat_ok": out["heat_imbalance"] <= tol["heat"] or not out["heat_driven"],
+        "charge_ok": out["charge_imbalance"] <= tol["charge"] or not out["charge_driven"],
     })
     out["checks_ok"] = all(out[k] for k in CHECK_FLAGS)
     return out
