@@ -1,7 +1,7 @@
 """Manufactured solutions: from exact fields u*, phi*, theta* to the data that make them solve
 the model, derived symbolically (sympy) and written as FreeFEM expressions.
 
-The constitutive law is the plane-strain one of freefem/constitutive.idp (PROBLEM.md,
+The constitutive law is the plane-strain one of freefem/constitutive.idp (docs/model.md section 2,
 paper 2.1, 2.2, 2.6; axis 1 = x, axis 3 = y, engineering shear):
 
     sigma = F eps(u) + E^T grad(phi) - theta M
@@ -187,33 +187,17 @@ def numeric(derived: Mapping[str, sympy.Expr]) -> dict[str, Callable[[np.ndarray
     return out
 
 
-# Dunavant's 6-point rule, exact for degree 4 (barycentric points, weights summing to 1).
-_A, _B = 0.816847572980458513, 0.091576213509770743
-_C, _D = 0.108103018168070227, 0.445948490915964886
-QUAD_POINTS = np.array([[_A, _B, _B], [_B, _A, _B], [_B, _B, _A], [_C, _D, _D], [_D, _C, _D], [_D, _D, _C]])
-QUAD_WEIGHTS = np.array([0.109951743655321869] * 3 + [0.223381589678011466] * 3)
-
-
 def fe_errors(points: np.ndarray, triangles: np.ndarray, values: Mapping[str, np.ndarray],
               exact: Mapping[str, sympy.Expr]) -> dict[str, dict[str, float]]:
-    """Absolute L2 error and H1-seminorm error of P1 nodal fields against exact ones, by
-    quadrature on each triangle: an independent check of what FreeFEM reports. `values`
-    maps "u" to (N, 2) and "phi"/"theta" to (N,); `exact` holds u1, u2, phi, theta."""
-    from harness.norms import gradients
+    """Absolute L2 error and full-gradient H1-seminorm error of P1 nodal fields against
+    exact ones (harness/norms.py, exact_errors): an independent check of what FreeFEM
+    reports. `values` maps "u" to (N, 2) and "phi"/"theta" to (N,); `exact` holds u1, u2,
+    phi, theta."""
+    from harness.norms import exact_errors
 
-    corners = points[triangles]  # (M, 3, 2)
-    qp = np.einsum("qk,mkd->mqd", QUAD_POINTS, corners)  # (M, Q, 2)
-    qx, qy = qp[..., 0], qp[..., 1]
     out = {}
     for field, nodal in values.items():
-        columns = [nodal[:, 0], nodal[:, 1]] if nodal.ndim == 2 else [nodal]
         keys = ["u1", "u2"] if nodal.ndim == 2 else [field]
-        l2 = h1 = 0.0
-        for column, key in zip(columns, keys):
-            f = numeric({"v": exact[key], "dx": sympy.diff(exact[key], X), "dy": sympy.diff(exact[key], Y)})
-            dx, dy, area = gradients(points, triangles, column)
-            uh = np.einsum("qk,mk->mq", QUAD_POINTS, column[triangles])
-            l2 += np.sum(area * ((uh - f["v"](qx, qy)) ** 2 @ QUAD_WEIGHTS))
-            h1 += np.sum(area * (((dx[:, None] - f["dx"](qx, qy)) ** 2 + (dy[:, None] - f["dy"](qx, qy)) ** 2) @ QUAD_WEIGHTS))
-        out[field] = {"L2": math.sqrt(l2), "H1": math.sqrt(h1)}
+        f = [numeric({"v": exact[k], "dx": sympy.diff(exact[k], X), "dy": sympy.diff(exact[k], Y)}) for k in keys]
+        out[field] = exact_errors(points, triangles, nodal, [(g["v"], g["dx"], g["dy"]) for g in f])
     return out

@@ -1,4 +1,4 @@
-"""P1 transfer between meshes and the seminorms of PROBLEM.md, on the fine mesh.
+"""P1 transfer between meshes and the seminorms of docs/model.md section 7, on the fine mesh.
 
     ||v||_V^2 = int eps(v):eps(v),   ||xi||_W^2 = ||eta||_Q^2 = int |grad xi|^2
 
@@ -6,6 +6,9 @@ P1 gradients are constant per triangle, so the integrals are exact sums of area 
 """
 
 from __future__ import annotations
+
+import math
+from typing import Callable, Sequence
 
 import numpy as np
 from matplotlib.tri import Triangulation
@@ -44,6 +47,33 @@ def seminorm(points: np.ndarray, triangles: np.ndarray, values: np.ndarray) -> f
     if values.ndim == 2:
         return float(np.sqrt(strain_seminorm_sq(points, triangles, values)))
     return float(np.sqrt(gradient_seminorm_sq(points, triangles, values)))
+
+
+# Dunavant's 6-point rule, exact for degree 4 (barycentric points, weights summing to 1).
+_A, _B = 0.816847572980458513, 0.091576213509770743
+_C, _D = 0.108103018168070227, 0.445948490915964886
+QUAD_POINTS = np.array([[_A, _B, _B], [_B, _A, _B], [_B, _B, _A], [_C, _D, _D], [_D, _C, _D], [_D, _D, _C]])
+QUAD_WEIGHTS = np.array([0.109951743655321869] * 3 + [0.223381589678011466] * 3)
+
+Exact = Callable[[np.ndarray, np.ndarray], np.ndarray]
+
+
+def exact_errors(points: np.ndarray, triangles: np.ndarray, nodal: np.ndarray,
+                 exact: Sequence[tuple[Exact, Exact, Exact]]) -> dict[str, float]:
+    """L2 error and full-gradient H1-seminorm error of a P1 field (N,) or (N, k) against
+    exact functions (value, d/dx, d/dy of each component), by quadrature on each triangle:
+    the manufactured-solution norms (freefem/norms.idp l2DiffSq, fullGradDiffSq)."""
+    corners = points[triangles]  # (M, 3, 2)
+    qp = np.einsum("qk,mkd->mqd", QUAD_POINTS, corners)  # (M, Q, 2)
+    qx, qy = qp[..., 0], qp[..., 1]
+    columns = [nodal[:, i] for i in range(nodal.shape[1])] if nodal.ndim == 2 else [nodal]
+    l2 = h1 = 0.0
+    for column, (f, fx, fy) in zip(columns, exact, strict=True):
+        dx, dy, area = gradients(points, triangles, column)
+        uh = np.einsum("qk,mk->mq", QUAD_POINTS, column[triangles])
+        l2 += np.sum(area * ((uh - f(qx, qy)) ** 2 @ QUAD_WEIGHTS))
+        h1 += np.sum(area * (((dx[:, None] - fx(qx, qy)) ** 2 + (dy[:, None] - fy(qx, qy)) ** 2) @ QUAD_WEIGHTS))
+    return {"L2": math.sqrt(l2), "H1": math.sqrt(h1)}
 
 
 def transfer_weights(coarse: Fields, points: np.ndarray) -> tuple[np.ndarray, np.ndarray]:

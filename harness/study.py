@@ -24,7 +24,7 @@ from harness.rates import fitted_slope, pairwise_orders
 from harness.run import LevelRun, RunResult, WarmStart, check_solver_files, run_level
 from harness.scene import Scene
 
-# Fields the error measure knows, in the order PROBLEM.md sums them (V, W, Q).
+# Fields the error measure knows, in the order docs/model.md section 7 sums them (V, W, Q).
 NORMED_FIELDS = ("u", "phi", "theta")
 
 

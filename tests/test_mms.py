@@ -26,7 +26,7 @@ from harness.verify import BANDS, MMS_CASES, mms_errors, mms_rates
 COMMITTED = REPO / "results" / "verification" / "mms_levels.csv"
 
 ALL_BULK = ("piezoelectric", "thermal", "pyroelectric")
-# The paper's plane-strain BaTiO3 constants (PROBLEM.md), typed here independently of
+# The paper's plane-strain BaTiO3 constants (docs/model.md section 5), typed here independently of
 # freefem/materials and freefem/material.idp.
 PAPER_BATIO3 = dict(f11=166e9, f13=78e9, f33=162e9, f44=43e9, e31=-4.4, e33=18.6, e15=11.6,
                     b11=11.2e-9, b33=12.6e-9, m11=2.24e6, m33=1.89e6, p1=0.0, p3=-1e-4,
@@ -50,7 +50,7 @@ def test_freefem_reduces_the_material_file_to_the_papers_constants():
 
 def law(eps, grad_phi, theta):
     """Stress, electric displacement from Voigt strain (e11, e33, 2e13), in numpy, written from
-    PROBLEM.md's matrices: sigma = F eps - E^T E(phi) - theta M with E(phi) = -grad phi."""
+    docs/model.md section 2's matrices: sigma = F eps - E^T E(phi) - theta M with E(phi) = -grad phi."""
     c = PAPER_BATIO3
     F = np.array([[c["f11"], c["f13"], 0], [c["f13"], c["f33"], 0], [0, 0, c["f44"]]])
     E = np.array([[0, 0, c["e15"]], [c["e31"], c["e33"], 0]])

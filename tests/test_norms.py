@@ -1,4 +1,4 @@
-"""The seminorms of PROBLEM.md and the coarse-to-fine P1 transfer, against known answers."""
+"""The seminorms of docs/model.md section 7 and the coarse-to-fine P1 transfer, against known answers."""
 
 from __future__ import annotations
 
@@ -11,7 +11,7 @@ import pytest
 from harness.errors import FieldsError
 from harness.fields import Fields, read_fields
 from harness.mesh import build_mesh
-from harness.norms import error_norms, gradient_seminorm_sq, seminorm, strain_seminorm_sq, transfer
+from harness.norms import error_norms, exact_errors, gradient_seminorm_sq, seminorm, strain_seminorm_sq, transfer
 from harness.scene import load_scene
 
 AREA = 4.0  # the paper's (0,4)x(0,1)
@@ -128,3 +128,18 @@ def test_fields_by_name_from_a_vtu(tmp_path):
 def test_a_missing_solution_file_is_an_error(tmp_path):
     with pytest.raises(FieldsError, match="solution file not found"):
         read_fields(tmp_path / "solution.vtu")
+
+
+def test_errors_against_exact_functions(meshes):
+    """The manufactured-solution norms: zero for a linear field (P1 holds it exactly); the
+    vector field 0 against (x, 2x - y) on (0,4)x(0,1): int x^2 = 64/3, int (2x - y)^2 = 212/3,
+    and |grad|^2 = 1 + 5 everywhere."""
+    mesh = meshes[4]
+    x, y = mesh.points[:, 0], mesh.points[:, 1]
+    linear = (lambda a, b: 2 * a - b, lambda a, b: 2 + 0 * a, lambda a, b: -1 + 0 * a)
+    zero = exact_errors(mesh.points, mesh.triangles, 2 * x - y, [linear])
+    assert zero["L2"] < ROUND_OFF and zero["H1"] < ROUND_OFF
+    ramp = (lambda a, b: a, lambda a, b: 1 + 0 * a, lambda a, b: 0 * a)
+    errors = exact_errors(mesh.points, mesh.triangles, np.zeros((len(x), 2)), [ramp, linear])
+    assert errors["L2"] ** 2 == pytest.approx(64 / 3 + 212 / 3, rel=ROUND_OFF)
+    assert errors["H1"] ** 2 == pytest.approx(AREA * (1 + 5), rel=ROUND_OFF)
