@@ -182,6 +182,15 @@ def test_a_full_disk_while_meshing_on_a_tiny_tmpfs(capsys, tmp_path):
         assert not list((disk / "results" / "paper").glob(".tmp-*"))
 
 
+def test_a_full_disk_while_freefem_writes_its_outputs(capsys, tmp_path):
+    """A 64 kB tmpfs holds n = 2's run and the meshes, not n = 4's outputs (real FreeFEM)."""
+    with mounted_tmpfs(tmp_path / "full", "size=64k") as disk:
+        code, err, _ = run(capsys, disk / "results", "solve", str(PAPER), "--n", "8", freefem=REPO / "freefem")
+        assert code == 4
+        one_error(err, "no space left on the device for the outputs of paper n=")
+        assert not list((disk / "results" / "paper").glob(".tmp-*"))
+
+
 def test_a_full_disk_while_meshing_monkeypatched(capsys, tmp_path, monkeypatch):
     """The same without root: gmsh leaves a truncated file (as it does on a full disk, without
     a word) and the disk reports no space left."""
