@@ -108,6 +108,29 @@ def test_a_signal_ends_the_process_tree_removes_temp_dirs_and_keeps_completed_le
     assert cache.corrupted(done) is None and (done / "solution.vtu").is_file()
 
 
+def test_freefem_and_the_mesh_worker_die_with_a_sigkilled_harness(tmp_path):
+    """No handler runs on SIGKILL: the kernel's parent-death signal ends the FreeFEM runs
+    (setpriv --pdeathsig) and the forked mesh worker (prctl)."""
+    if shutil.which("setpriv") is None:
+        pytest.skip("util-linux setpriv is not installed")
+    proc = harness_process(tmp_path, "convergence", str(STUB_CASE), "--levels", "2,4,8",
+                           "--set", "scene.material=HangFine", "--set", "scene.initial_guess=coarser")
+    case = tmp_path / "results" / "paper"
+    wait_for(lambda: any(case.glob(".tmp-n4-*/child.pid")))
+    tree = descendants(proc.pid)
+    freefem = [pid for pid in tree if "FreeFem++" in Path(f"/proc/{pid}/cmdline").read_text(errors="replace")]
+    workers = [pid for pid in tree if "python" in Path(f"/proc/{pid}/cmdline").read_text(errors="replace")]
+    assert freefem and workers
+    proc.kill()
+    proc.communicate(timeout=30)
+    try:
+        wait_for(lambda: not any(alive(pid) for pid in freefem + workers), timeout=10)
+    finally:  # the stub's `sleep 60`, a child of FreeFEM, is not FreeFEM's to end
+        for pid in freefem:
+            with contextlib.suppress(ProcessLookupError):
+                os.killpg(pid, signal.SIGKILL)
+
+
 def test_ctrl_c_to_the_whole_group_is_one_line(tmp_path):
     """Defect 3: SIGINT to the process group (the terminal's Ctrl-C) reaches the mesh worker
     and every run; no traceback from any of them."""
