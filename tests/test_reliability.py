@@ -360,6 +360,15 @@ def test_a_level_that_cannot_fit_is_refused_before_meshing(capsys, tmp_path):
     assert not (tmp_path / "paper").exists()
 
 
+def test_the_memory_guard_counts_the_level_running_alongside():
+    effects = ("piezoelectric", "thermal")
+    one = guards.memory_estimate(4.0, 1.0, 256, effects)[1]
+    below = guards.memory_estimate(4.0, 1.0, 128, effects)[1]
+    guards.check_memory(4.0, 1.0, (128, 256), effects, available=one + below)
+    with pytest.raises(guards.EnvironmentFault, match="n=256 would need about 8.83 GB"):
+        guards.check_memory(4.0, 1.0, (64, 128, 256), effects, available=one + below - 1)
+
+
 def test_non_nested_levels_are_refused(capsys, tmp_path):
     """Defect 10: levels 2, 3, 4 are not nested."""
     code, err, _ = run(capsys, tmp_path, "convergence", str(STUB_CASE), "--levels", "2,3,4")
