@@ -249,8 +249,9 @@ def physical_checks(record: dict[str, Any], scene: Scene) -> dict[str, Any]:
         scale = max(abs(into), abs(source), abs(leaving), FLOOR * natural[name] * length, NOTHING_FLOWS)
         out[f"{name}_imbalance"] = abs(into + source - leaving) / scale
         # Nothing drives this flow (no conductance drive, no source: `block`'s phi_f = theta_f = 0,
-        # `heated`'s charge, `heat` without a contact part): the exact flow is zero and every
-        # term round-off of the bulk flux, whose size run.json does not give.
+        # `heated`'s charge, `heat` without a contact part): the exact flow is zero and every term
+        # round-off of the bulk flux, whose size run.json does not give; the balance then has
+        # nothing to compare with.
         out[f"{name}_driven"] = natural[name] * length > 0 or abs(source) > 0
     open_ok = True
     for name in ("heat", "charge"):
