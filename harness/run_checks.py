@@ -46,7 +46,7 @@ def check_run(scene: Scene, run: RunResult) -> Checked:
             warnings.append(warning)
     if not record.get("checks"):
         return Checked(run.n, f"checks n={run.n}: none reported by the solver", True, tuple(warnings))
-    values = physical_checks(record, scene)
+    values = physical_checks(record, scene)  # every quantity FreeFEM's (checks.idp)
     failed = [flag for flag in CHECK_FLAGS if not values.get(flag)]
     if not failed:
         return Checked(run.n, f"checks n={run.n}: pass ({', '.join(f[:-3] for f in CHECK_FLAGS)})", True,

@@ -280,7 +280,7 @@ def test_a_change_to_the_generated_script_is_a_cache_miss(capsys, tmp_path, monk
 
 
 def test_the_key_covers_the_input_writing_code(tmp_path):
-    assert {"harness.script", "harness.run", "harness.freefem"} <= set(cache.code_digests())
+    assert {"harness.script", "harness.unknowns", "harness.run", "harness.freefem"} <= set(cache.code_digests())
 
 
 def test_adding_a_material_invalidates_only_the_runs_that_use_it(tmp_path):

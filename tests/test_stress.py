@@ -167,7 +167,9 @@ def paper_record(**checks) -> dict:
             "min_sigma_nu": -3e-6, "max_abs_sigma_tau": 0.02, "S": 8.5, "heat_source": 0.0,
             "heat_out_dirichlet": 1e-4, "max_heat_flux_contact": 1e-4, "max_heat_flux_open": 0.0,
             "charge_source": 0.0, "charge_out_dirichlet": -5e-7, "max_charge_flux_contact": 3e-7,
-            "max_charge_flux_open": 0.0}
+            "max_charge_flux_open": 0.0,
+            # the paper's conductance laws at full contact, k_c |theta_f| and k_e |phi_f| (checks.idp)
+            "natural_heat_flux": 373.0, "natural_charge_flux": 4.4}
     return {"heat_in_contact": 1e-4, "charge_in_contact": -5e-7, "checks": {**base, **checks}}
 
 
