@@ -416,6 +416,17 @@ def test_solve_prints_the_checks_and_a_failed_check_exits_1(capsys, tmp_path, mo
     one_error(err, "physical checks failed at n = 2", "charge")
 
 
+def test_a_check_the_solver_does_not_report_is_missing_not_failed(tmp_path):
+    from harness.run import RunResult
+    from harness.run_checks import check_run
+    from harness.scene import load_scene
+
+    record = {"n": 2, "checks": {"force_imbalance": 0.0, "force_residual_bound": 1.0}}
+    checked = check_run(load_scene(PAPER), RunResult(2, tmp_path, record, reused=True))
+    assert checked.passed and checked.line == ("checks n=2: pass (force); not reported: sigma_nu, sigma_tau, "
+                                               "open_flux, heat, charge")
+
+
 # ---- 10: smaller ones ----------------------------------------------------------------------
 
 @pytest.mark.parametrize("guess, hinted", [("zero", True), ("pressed", False)])
