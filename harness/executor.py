@@ -23,7 +23,7 @@ import contextlib
 from concurrent.futures import ThreadPoolExecutor
 from dataclasses import dataclass, field
 from pathlib import Path
-from typing import Any, Callable, Iterator, Protocol, Sequence
+from typing import Any, Callable, Iterator, Protocol, Sequence, TypeVar
 
 from harness.errors import EnvironmentFault, RunError, SceneError
 from harness.layout import Layout
@@ -32,6 +32,7 @@ from harness.run import RunResult, run_level
 from harness.scene import Scene
 
 Progress = Callable[[str], None]
+T = TypeVar("T")
 
 
 @dataclass(frozen=True)
@@ -56,6 +57,12 @@ class ChainOutcome:
 
 
 class Executor(Protocol):
+    """Both grains of work: `map` runs independent pieces (a whole chain each, the study
+    engine's seam) and returns their results in order; `run` takes chains of levels and
+    makes every level its own task."""
+
+    def map(self, work: Sequence[Callable[[], T]]) -> list[T]: ...
+
     def run(self, chains: Sequence[Chain], progress: Progress) -> list[ChainOutcome]: ...
 
 
@@ -69,6 +76,10 @@ class LocalExecutor:
 
     def __init__(self, jobs: int) -> None:
         self.jobs = max(1, jobs)
+
+    def map(self, work: Sequence[Callable[[], T]]) -> list[T]:
+        with ThreadPoolExecutor(max_workers=min(self.jobs, max(1, len(work)))) as pool:
+            return list(pool.map(lambda piece: piece(), work))
 
     def run(self, chains: Sequence[Chain], progress: Progress = quiet) -> list[ChainOutcome]:
         with ThreadPoolExecutor(max_workers=min(self.jobs, max(1, len(chains)))) as pool:
@@ -107,6 +118,17 @@ class DaskExecutor:
 
     def __init__(self, client: Any) -> None:
         self.client = client
+
+    def map(self, work: Sequence[Callable[[], T]]) -> list[T]:
+        """Each piece a task (cloudpickled closures; what they name must import on a worker).
+        A piece's own HarnessError comes back as raised; a worker lost for good is a RunError."""
+        futures = [self.client.submit(piece, pure=False) for piece in work]
+        try:
+            return list(self.client.gather(futures))
+        except (RunError, SceneError, EnvironmentFault):
+            raise
+        except Exception as exc:  # KilledWorker, a cancelled task: the cluster's, not the run's
+            raise RunError(f"a Dask task failed: {type(exc).__name__}: {exc}") from None
 
     def run(self, chains: Sequence[Chain], progress: Progress = quiet) -> list[ChainOutcome]:
         from distributed import as_completed

@@ -85,3 +85,16 @@ def test_scheduler_and_cluster_exclude_each_other():
     with pytest.raises(SceneError, match="not both"):
         with executor(1, scheduler="tcp://127.0.0.1:1", cluster="local:2"):
             pass
+
+
+def square(k: int) -> int:
+    return k * k
+
+
+def test_map_runs_pieces_side_by_side_in_order_on_both_executors():
+    work = [lambda k=k: square(k) for k in range(5)]
+    assert LocalExecutor(2).map(work) == [0, 1, 4, 9, 16]
+    with executor(1, cluster="local:2") as dask:
+        assert dask.map(work) == [0, 1, 4, 9, 16]
+        with pytest.raises(SceneError, match="local:N"):
+            dask.map([lambda: parse_cluster("bad")])
