@@ -80,7 +80,9 @@ def mpi_table(case: Path, levels: tuple[int, ...], ranks: Sequence[int], layout:
 
 
 def study_table(levels: tuple[int, ...], cluster: str, layout_root: Path) -> pd.DataFrame:
-    """Every scene of cases/*.toml as a chain: one local worker against the Dask cluster."""
+    """Every scene of cases/*.toml as a chain: one local worker against the Dask cluster;
+    the tables compared as the study's CSV writes them (10 digits: full precision would
+    compare round-off, ~1e-14, between a pipelined and a plain run of one level)."""
     rows, tables = [], {}
     for label, how in (("local, 1 worker", None), (f"dask {cluster}", cluster)):
         layout = Layout(results=layout_root / label.split(",")[0].split()[0])
@@ -93,7 +95,7 @@ def study_table(levels: tuple[int, ...], cluster: str, layout_root: Path) -> pd.
         if errors:
             raise RunError(errors[0])
         tables[label] = {o.chain.scene.name: error_table(o.runs, tuple(o.runs[max(levels)].record["fields"]))
-                         .drop(columns=["wall_s"]).to_csv() for o in outcomes}
+                         .drop(columns=["wall_s"]).to_csv(float_format="%.10g") for o in outcomes}
         rows.append({"executor": label, "scenes": len(chains), "levels": " ".join(map(str, levels)),
                      "runs": sum(len(o.runs) for o in outcomes), "wall_s": wall})
     table = pd.DataFrame(rows)

@@ -29,13 +29,17 @@ def chains(results: Path) -> list[Chain]:
 
 
 def tables(outcomes) -> dict[str, str]:
-    """Each scene's study table as CSV, less the wall times (which no two runs share)."""
+    """Each scene's study table as the study writes its CSV (report.py: 10 significant
+    digits), less the wall times (which no two runs share). Full precision would compare
+    round-off: a pipelined and a non-pipelined run of one level differ by ~1e-14 relative
+    (measured: longcontact n = 16), presumably the sparse solver's alignment-dependent
+    kernels."""
     out = {}
     for outcome in outcomes:
         assert outcome.error is None, outcome.error
         assert sorted(outcome.runs) == list(LEVELS)
         fields = tuple(outcome.runs[LEVELS[-1]].record["fields"])
-        out[outcome.chain.scene.name] = error_table(outcome.runs, fields).drop(columns=["wall_s"]).to_csv()
+        out[outcome.chain.scene.name] = error_table(outcome.runs, fields).drop(columns=["wall_s"]).to_csv(float_format="%.10g")
     return out
 
 
