@@ -108,3 +108,11 @@ def test_ranks_must_be_positive():
     with pytest.raises(SceneError, match="ranks"):
         load_scene(CASES / "paper.toml", ["run.ranks=0"])
     assert json.loads(json.dumps(load_scene(CASES / "paper.toml").table["run"]))["ranks"] == 1
+
+
+def test_a_missing_launcher_is_one_error_line(tmp_path, capsys):
+    from harness.cli import main
+    code = main(["solve", str(CASES / "paper.toml"), "--n", "2", "--results", str(tmp_path),
+                 "--set", "run.ranks=2", "--set", "run.launcher=no-such-mpirun -np {ranks}"])
+    err = capsys.readouterr().err.strip().splitlines()
+    assert code == 4 and len(err) == 1 and err[0].startswith("error: no-such-mpirun not found"), err
