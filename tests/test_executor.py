@@ -44,15 +44,21 @@ def tables(outcomes) -> dict[str, str]:
 
 
 @pytest.fixture(scope="module")
+def dask():
+    """One real local cluster (2 worker processes) for the tests that kill no worker."""
+    with executor(1, cluster="local:2") as running:
+        yield running
+
+
+@pytest.fixture(scope="module")
 def local_tables(tmp_path_factory) -> dict[str, str]:
     return tables(LocalExecutor(2).run(chains(tmp_path_factory.mktemp("local"))))
 
 
-def test_a_local_dask_cluster_gives_the_local_tables(local_tables, tmp_path):
+def test_a_local_dask_cluster_gives_the_local_tables(dask, local_tables, tmp_path):
     lines: list[str] = []
-    with executor(1, cluster="local:2") as dask:
-        assert len(dask.client.scheduler_info()["workers"]) == 2
-        outcomes = dask.run(chains(tmp_path), lines.append)
+    assert len(dask.client.scheduler_info()["workers"]) == 2
+    outcomes = dask.run(chains(tmp_path), lines.append)
     assert tables(outcomes) == local_tables
     assert len(lines) == len(SCENES) * len(LEVELS) and all("(Dask)" in line for line in lines)
     # Every level was run by a worker into the shared results tree, nothing reused.
@@ -95,10 +101,26 @@ def square(k: int) -> int:
     return k * k
 
 
-def test_map_runs_pieces_side_by_side_in_order_on_both_executors():
+def test_map_runs_pieces_side_by_side_in_order_on_both_executors(dask):
     work = [lambda k=k: square(k) for k in range(5)]
     assert LocalExecutor(2).map(work) == [0, 1, 4, 9, 16]
-    with executor(1, cluster="local:2") as dask:
-        assert dask.map(work) == [0, 1, 4, 9, 16]
-        with pytest.raises(SceneError, match="local:N"):
-            dask.map([lambda: parse_cluster("bad")])
+    assert dask.map(work) == [0, 1, 4, 9, 16]
+    with pytest.raises(SceneError, match="local:N"):
+        dask.map([lambda: parse_cluster("bad")])
+
+
+def test_two_workers_running_the_same_levels_at_once_leave_one_complete_result(dask, tmp_path):
+    """Both workers run (forced) the same chain into one results tree: each level is swapped
+    in whole, so the survivor is complete, passes its checksums and is reused afterwards."""
+    from harness.cache import corrupted
+
+    layout = Layout(results=tmp_path)
+    scene = load_scene(CASES / "paper.toml")
+    twin = [Chain(scene, (2, 4), layout, force=True), Chain(scene, (2, 4), layout, force=True)]
+    outcomes = dask.run(twin)
+    assert all(o.error is None and sorted(o.runs) == [2, 4] for o in outcomes)
+    for n in (2, 4):
+        assert corrupted(tmp_path / "paper" / f"n{n}") is None
+    assert not list((tmp_path / "paper").glob(".tmp-*")) and not list((tmp_path / "paper").glob(".old-*"))
+    again = LocalExecutor(1).run([Chain(scene, (2, 4), layout)])[0]
+    assert again.error is None and all(run.reused for run in again.runs.values())
