@@ -186,7 +186,7 @@ def connect(scheduler: str | None = None, cluster: str | None = None) -> Iterato
         return
     workers = parse_cluster(cluster or "")
     with LocalCluster(n_workers=workers, threads_per_worker=1, processes=True,
-                      dashboard_address=None) as local, Client(local) as client:
+                      dashboard_address=":0") as local, Client(local) as client:  # any free port
         yield DaskExecutor(client)
 
 
