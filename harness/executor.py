@@ -207,3 +207,16 @@ def executor(jobs: int, scheduler: str | None = None, cluster: str | None = None
             yield dask
     else:
         yield LocalExecutor(jobs)
+
+
+def add_arguments(parser: Any) -> None:
+    """--scheduler / --cluster for a study whose independent chains can run on a cluster."""
+    parser.add_argument("--scheduler", metavar="tcp://HOST:PORT",
+                        help="run the study's chains on this Dask scheduler (workers share the results path)")
+    parser.add_argument("--cluster", metavar="local:N",
+                        help="run them on a local Dask cluster of N worker processes")
+
+
+def from_args(args: Any, jobs: int = 1) -> contextlib.AbstractContextManager[Executor]:
+    """The executor a study's parsed flags ask for (this machine without them)."""
+    return executor(getattr(args, "jobs", jobs), getattr(args, "scheduler", None), getattr(args, "cluster", None))
