@@ -76,6 +76,10 @@ def check_parallel(scene: Any) -> None:
 def environment() -> dict[str, str]:
     env = freefem.environment()
     env.update(FF_LOADPATH=MPI_PLUGIN_PATH, FF_INCLUDEPATH=IDP_PATH)
+    # A rank waiting for a message yields its core instead of spinning (OpenMPI's
+    # mpi_yield_when_idle, on by default only when a node is oversubscribed): the ranks
+    # share the cores with a study's other runs. A launcher's own setting wins.
+    env.setdefault("OMPI_MCA_mpi_yield_when_idle", "1")
     if os.geteuid() == 0:  # OpenMPI refuses root without both
         env.update(OMPI_ALLOW_RUN_AS_ROOT="1", OMPI_ALLOW_RUN_AS_ROOT_CONFIRM="1")
     return env
