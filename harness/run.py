@@ -12,6 +12,7 @@ from typing import Any
 
 from harness import freefem
 from harness.atomic import write_atomic
+from harness.contract import Failure
 from harness.cache import cached_record, run_inputs, sha256_file, write_checksums
 from harness.errors import EnvironmentFault, RunError, SceneError
 from harness.faults import disk_full
@@ -250,13 +251,14 @@ def collect(
     if outcome.returncode != 0:
         detail = (record or {}).get("reason") or freefem.error_detail(read_logs(work))
         reason = freefem.failure_reason(outcome, scene.timeout_s, str(detail), started_pressed(scene, guess))
-        raise RunError(f"{where}: {reason} (see {log})")
+        raise RunError(f"{where}: {reason} (see {log})", freefem.failure_of(outcome))
     if record is None:
-        raise RunError(f"{where}: FreeFEM wrote no readable run.json (see {log})")
+        raise RunError(f"{where}: FreeFEM wrote no readable run.json (see {log})", Failure.NO_OUTPUT)
     if record.get("converged") is not True:
-        raise RunError(f"{where}: not converged: {record.get('reason', 'no reason given')} (see {log})")
+        raise RunError(f"{where}: not converged: {record.get('reason', 'no reason given')} (see {log})",
+                       NEWTON_REASONS.get(str(record.get("reason")), Failure.NOT_CONVERGED))
     if not (work / "solution.vtu").is_file():
-        raise RunError(f"{where}: FreeFEM wrote no solution.vtu (see {log})")
+        raise RunError(f"{where}: FreeFEM wrote no solution.vtu (see {log})", Failure.NO_OUTPUT)
     record["wall_s"] = outcome.wall_s
     if waited is not None:
         record.update(pipelined=True, waited_s=waited, wall_s=outcome.wall_s - waited)
@@ -270,6 +272,10 @@ def collect(
     record["started_from"] = guess if not start else f"file {start.state}"
     write_atomic(work / "run.json", json.dumps(record, indent=2) + "\n")
     return record
+
+
+# run.json's `reason` of a run that stopped without converging (freefem/newton.idp).
+NEWTON_REASONS = {"diverged": Failure.DIVERGED, "max_iterations": Failure.MAX_ITERATIONS, "nan": Failure.NAN}
 
 
 def started_pressed(scene: Scene, guess: str) -> bool:

@@ -7,13 +7,14 @@ import sys
 from dataclasses import dataclass
 from typing import Any, Iterable
 
+from harness.checks import CHECK_FLAGS, physical_checks
 from harness.errors import FieldsError, HarnessError
 from harness.fields import Fields, read_fields
 from harness.guards import max_displacement_gradient, small_strain_warning
 from harness.run import RunResult
 from harness.scene import Scene
 
-# Check flag -> the value(s) worth showing when it fails (harness/stress.py physical_checks).
+# Check flag -> the value(s) worth showing when it fails (harness/checks.py physical_checks).
 SHOWN = {
     "force_ok": ("force_imbalance", "force_residual_bound"),
     "sigma_nu_ok": ("max_sigma_nu", "sigma_nu_scale"),
@@ -33,8 +34,7 @@ class Checked:
 
 
 def check_run(scene: Scene, run: RunResult) -> Checked:
-    """Evaluate the checks of one converged run (the tolerances are stress.py's)."""
-    from harness.stress import CHECK_FLAGS, physical_checks  # its pandas import only when checking
+    """Evaluate the checks of one converged run (harness/checks.py)."""
 
     record = run.record
     fields = solution_fields(run)

@@ -12,7 +12,7 @@ import numpy as np
 import pandas as pd
 import pytest
 
-from harness.cost import (
+from harness.studies.cost import (
     Fits,
     PowerLaw,
     add_chain_costs,
@@ -29,7 +29,7 @@ from harness.layout import Layout
 from harness.mesh import build_mesh
 from harness.norms import error_norms
 from harness.scene import load_scene
-from harness.study import run_chain
+from harness.engine import run_chain, runs_of
 
 CASE = Path(__file__).parents[1] / "cases" / "paper.toml"
 H = np.array([1 / 4, 1 / 8, 1 / 16, 1 / 32, 1 / 64])
@@ -122,7 +122,7 @@ def chain(tmp_path: Path, levels, *overrides):
     scene = load_scene(CASE, overrides)
     layout = Layout(results=tmp_path)
     meshes = {n: build_mesh(scene.geometry, n, layout.meshes_dir(scene.name)).path for n in levels}
-    return meshes, run_chain(scene, meshes, layout, False, lambda s: None)
+    return meshes, runs_of(run_chain(scene, meshes, layout, False, lambda s: None))
 
 
 def reference_options(meshes, runs, n: int, element: str) -> list[str]:
@@ -185,7 +185,7 @@ def test_a_small_cost_study_writes_its_table_plots_and_frontier(tmp_path):
 
 
 def test_graded_coordinate_fixes_the_breakpoints_and_packs_towards_the_focus():
-    from harness.cost import graded_coordinate
+    from harness.mesh import graded_coordinate
     t = np.linspace(0.0, 4.0, 65)
     g = graded_coordinate(t, [1.0, 3.0], 2.0)
     assert np.all(np.diff(g) > 0)  # increasing: triangles keep their orientation

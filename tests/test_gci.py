@@ -9,7 +9,7 @@ import pandas as pd
 import pytest
 
 from harness.gci import SAFETY, observed_order, three_grid
-from harness.verify import finest_triples, gci_table
+from harness.studies.verify import finest_triples, gci_table
 
 
 def power_law(f0: float, c: float, p: float, h: tuple[float, ...]) -> tuple[float, ...]:

@@ -11,8 +11,10 @@ import math
 import numpy as np
 import pytest
 
-from harness import stress
+from harness.studies import stress
+from harness.contract import Failure
 from harness.errors import RunError
+from harness.run import read_record
 from harness.fields import read_fields
 from harness.layout import Layout
 from harness.scene import load_scene
@@ -153,13 +155,16 @@ def test_paper_scene_iterations_do_not_grow_with_refinement(tmp_path):
 @pytest.mark.parametrize("reason", ["diverged", "max_iterations", "nan"])
 def test_newton_failures_are_classified_from_run_json(tmp_path, reason):
     (tmp_path / "run.json").write_text(json.dumps({"reason": reason, "converged": False}))
-    status, record = stress.classify(RunError("x n=2: Newton ..."), tmp_path)
+    record = read_record(tmp_path)
+    status = stress.classify(RunError("x n=2: Newton ...", Failure.OTHER).failure, record)
     assert status == reason and record["reason"] == reason
 
 
 def test_a_timeout_and_a_freefem_error_are_classified_from_the_message(tmp_path):
-    assert stress.classify(RunError("x n=2: timed out after 5 s (process group killed)"), tmp_path)[0] == "timeout"
-    assert stress.classify(RunError("x n=2: FreeFEM compile error: ..."), tmp_path)[0] == "freefem_error"
+    timeout = RunError("x n=2: timed out after 5 s (process group killed)", Failure.TIMEOUT)
+    assert stress.classify(timeout.failure, read_record(tmp_path)) == "timeout"
+    compile_error = RunError("x n=2: FreeFEM compile error: ...", Failure.COMPILE)
+    assert stress.classify(compile_error.failure, read_record(tmp_path)) == "freefem_error"
 
 
 def paper_record(**checks) -> dict:

@@ -1,6 +1,6 @@
 """Every scene in cases/: a convergence study each, and one table of what each costs.
 
-`python -m harness.scenes [--cases DIR]` (the `make scenes` target) writes each scene's
+`python -m harness scenes [--cases DIR]` (the `make scenes` target) writes each scene's
 own report (results/<scene>/) and results/scenes/summary.csv with the finest level's
 unknowns, dofs, time and Newton iterations next to the slopes of the fields it has.
 """
@@ -10,17 +10,16 @@ from __future__ import annotations
 import argparse
 import sys
 from pathlib import Path
-from typing import Any, Sequence
+from typing import Any
 
 import pandas as pd
 
-from harness.atomic import write_atomic
-from harness.cli import level_list
-from harness.errors import HarnessError
-from harness.layout import REPO, Layout
+from harness.arguments import add_common, add_levels, layout_of
+from harness.layout import REPO
 from harness.report import write_report
 from harness.scene import load_scene
 from harness.study import NORMED_FIELDS, Study, run_study
+from harness.writers import write_csv
 
 
 def scene_row(study: Study) -> dict[str, Any]:
@@ -43,33 +42,23 @@ def scene_row(study: Study) -> dict[str, Any]:
     return row
 
 
-def main(argv: Sequence[str] | None = None) -> int:
-    parser = argparse.ArgumentParser(prog="python -m harness.scenes", description=__doc__)
+def add_arguments(parser: argparse.ArgumentParser) -> None:
     parser.add_argument("--cases", type=Path, default=REPO / "cases", help="folder of scene files")
-    parser.add_argument("--results", type=Path, default=Layout().results)
-    parser.add_argument("--levels", help="comma-separated levels instead of each scene's own")
-    args = parser.parse_args(argv)
-    layout = Layout(results=args.results)
+    add_levels(parser, what="each scene's own")
+    add_common(parser)
+
+
+def run(args: argparse.Namespace) -> int:
+    layout = layout_of(args)
     rows = []
-    try:
-        for case in sorted(args.cases.glob("*.toml")):
-            scene = load_scene(case)
-            levels = level_list(args.levels) if args.levels else scene.levels
-            print(f"== {scene.name}: {', '.join(scene.effects)}", file=sys.stderr, flush=True)
-            study = run_study(scene, levels, layout, jobs=1)
-            write_report(study, layout)
-            rows.append(scene_row(study))
-    except HarnessError as exc:
-        print(f"error: {exc}", file=sys.stderr)
-        return 2
+    for case in sorted(args.cases.glob("*.toml")):
+        scene = load_scene(case)
+        print(f"== {scene.name}: {', '.join(scene.effects)}", file=sys.stderr, flush=True)
+        study = run_study(scene, args.levels or scene.levels, layout, jobs=1, force=args.force)
+        write_report(study, layout)
+        rows.append(scene_row(study))
     table = pd.DataFrame(rows)
-    out = layout.results / "scenes" / "summary.csv"
-    out.parent.mkdir(parents=True, exist_ok=True)
-    write_atomic(out, table.to_csv(index=False, float_format="%.6g"))
+    out = write_csv(table, layout.results / "scenes" / "summary.csv")
     print(table.to_string(index=False, float_format=lambda v: f"{v:.4g}"))
     print(f"wrote {out}")
     return 0
-
-
-if __name__ == "__main__":
-    sys.exit(main())

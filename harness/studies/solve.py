@@ -1,0 +1,60 @@
+"""`python -m harness solve CASE --n N`: one level (after the case's coarser levels when it
+is warm-started from them), its run.json summarised and its physical checks printed."""
+
+from __future__ import annotations
+
+import argparse
+from pathlib import Path
+from typing import Any
+
+from harness.arguments import add_case, add_scene_options, layout_of, positive_int, prepared_scene
+from harness.engine import InlineMeshes, quiet, run_chain, runs_of
+from harness.errors import VerdictError
+from harness.layout import Layout
+from harness.run import check_solver_files
+from harness.run_checks import failed_checks, print_checks
+from harness.scene import Scene
+
+
+def add_arguments(parser: argparse.ArgumentParser) -> None:
+    add_case(parser)
+    parser.add_argument("--n", type=positive_int, required=True, help="level n = 1/h")
+    add_scene_options(parser)
+
+
+def run(args: argparse.Namespace) -> int:
+    scene, (n,) = prepared_scene(args, (args.n,))
+    return solve(scene, n, layout_of(args), args.force)
+
+
+def solve(scene: Scene, n: int, layout: Layout, force: bool) -> int:
+    check_solver_files(scene, layout)
+    # Warm-started: the case's levels below n first, each from the one before (cached when
+    # unchanged), pipelined as in a convergence study.
+    below = sorted(level for level in scene.levels if level < n) if scene.initial_guess == "coarser" else []
+    meshes = InlineMeshes(scene, [*below, n], layout)
+    result = runs_of(run_chain(scene, meshes, layout, force, quiet))[n]
+    print(describe_run(scene.name, result.record, result.directory, result.reused))
+    failed = failed_checks(print_checks(scene, [result]))
+    if failed:
+        raise VerdictError(f"{scene.name} n={n}: {failed}")
+    return 0
+
+
+def describe_run(case: str, record: dict[str, Any], directory: Path, reused: bool) -> str:
+    get = record.get
+    state = "converged" if get("converged") else f"NOT converged ({get('reason')})"
+    return "\n".join([
+        f"{case} n={get('n')}: {state} in {get('newton_iterations')} Newton iterations"
+        f" (initial guess {get('initial_guess')}){' [reused]' if reused else ''}",
+        f"  dofs {get('dofs')}, wall {fmt(get('wall_s'))} s"
+        f" (assembly {fmt(get('assembly_s'))} s, solves {fmt(get('solve_s'))} s)",
+        f"  max theta {fmt(get('max_theta'))}, phi in [{fmt(get('min_phi'))}, {fmt(get('max_phi'))}],"
+        f" max |u| {fmt(get('max_abs_u'))}",
+        f"  contact force {fmt(get('contact_force'))}, active length {fmt(get('active_length'))}",
+        f"  results in {directory}",
+    ])
+
+
+def fmt(value: Any) -> str:
+    return f"{value:.4g}" if isinstance(value, (int, float)) and not isinstance(value, bool) else str(value)
