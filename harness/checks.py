@@ -68,13 +68,14 @@ def natural_fluxes(scene: Scene) -> dict[str, float]:
     round-off. FLOOR of it is 1e8 times round-off (~1e-20 C/m and W/m here) and over 500
     times below the smallest flow that does pass in the suite (charge 4.7e-7 C/m against a
     floor of 8.8e-10 on the paper's scene)."""
-    table, on = scene.table, set(scene.effects)
+    on = set(scene.effects)
     out = {"heat": 0.0, "charge": 0.0}
     if "thermal_contact" in on:
-        out["heat"] = table["thermal_contact"]["k_c"] * abs(table["thermal_contact"]["theta_f"])
+        t = scene.sections.thermal_contact
+        out["heat"] = t.k_c * abs(t.theta_f)
     if "electric_contact" in on:
-        e = table["electric_contact"]
-        out["charge"] = e["k_e"] * min(abs(e["phi_f"]), e["L"])
+        e = scene.sections.electric_contact
+        out["charge"] = e.k_e * min(abs(e.phi_f), e.L)
     return out
 
 

@@ -13,7 +13,8 @@ import sys
 from typing import Sequence
 
 from harness.arguments import Parser
-from harness.faults import guarded
+from harness.contract import ExitCode
+from harness.faults import guarded, report
 
 # Subcommand -> its one-line help (the module's own docstring says the rest).
 STUDIES: dict[str, str] = {
@@ -50,5 +51,8 @@ def plugin(name: str):  # noqa: ANN201 (a module)
 def main(argv: Sequence[str] | None = None) -> int:
     argv = list(sys.argv[1:] if argv is None else argv)
     chosen = next((a for a in argv if not a.startswith("-")), None)
-    args = parser(chosen if chosen in STUDIES else None).parse_args(argv)
+    try:  # the plug-in's imports are the rest of the start-up
+        args = parser(chosen if chosen in STUDIES else None).parse_args(argv)
+    except KeyboardInterrupt as exc:
+        return report(f"interrupted by {exc.args[0] if exc.args else 'SIGINT'} during start-up", ExitCode.INTERRUPTED)
     return guarded(lambda: args.run(args))

@@ -47,7 +47,7 @@ def summary(study: Study) -> dict[str, Any]:
     finest = study.table.iloc[-2]  # the finest level with an error
     return {
         "case": study.scene.name,
-        "description": study.scene.table["scene"]["description"],
+        "description": study.scene.sections.scene.description,
         "material": study.scene.material,
         "initial_guess": study.scene.initial_guess,
         "levels": [int(n) for n in study.table["n"]],

@@ -18,7 +18,6 @@ from harness.errors import EnvironmentFault, RunError, SceneError
 from harness.faults import disk_full
 from harness.signals import CHILDREN, Interrupted
 from harness.layout import Layout
-from harness.mms import scene_macros
 from harness.scene import Scene
 from harness.script import main_script
 
@@ -36,9 +35,9 @@ def start_of(scene: Scene, warm: WarmStart | None) -> tuple[str, WarmStart | Non
     """FreeFEM's initial_guess and the state it reads, from the scene and an optional coarser run."""
     guess = scene.initial_guess
     if guess == "coarser":
-        return ("file", warm) if warm else (scene.table["scene"]["coarsest_guess"], None)
+        return ("file", warm) if warm else (scene.sections.scene.coarsest_guess, None)
     if guess == "file":
-        given = WarmStart(Path(scene.table["scene"]["initial_mesh"]), Path(scene.table["scene"]["initial_state"]))
+        given = WarmStart(Path(scene.sections.scene.initial_mesh), Path(scene.sections.scene.initial_state))
         for what, path in (("initial_mesh", given.mesh), ("initial_state", given.state)):
             if not path.is_file():
                 raise SceneError(f"initial_guess = file: scene.{what} {str(path)!r} is not a file")
@@ -218,7 +217,7 @@ def solver_inputs(
     scene: Scene, mesh: Path, n: int, layout: Layout, guess: str, start: WarmStart | None, out: Path | None = None
 ) -> tuple[str, list[str]]:
     """main.edp's text and FreeFEM's options. A start state "-" is read from stdin (a pipelined run)."""
-    macros = {**scene_macros(scene, layout), **scene.reference_macros()}
+    macros = {**manufactured_macros(scene, layout), **scene.reference_macros()}
     text = main_script(scene.material, scene.effects, layout, element=scene.element, macros=macros,
                        linear_solver=scene.linear_solver)
     options = ["-mesh", str(mesh.resolve()), "-out", str(out.resolve() if out else "-"), "-n", str(n)]
@@ -227,6 +226,16 @@ def solver_inputs(
         state = str(start.state) if str(start.state) == "-" else str(start.state.resolve())
         options += ["-init.mesh", str(start.mesh.resolve()), "-init.state", state]
     return text, options
+
+
+def manufactured_macros(scene: Scene, layout: Layout) -> dict[str, str]:
+    """The macros of a scene's [manufactured] solution (harness/mms.py): a hook loaded only
+    for such a scene, so no other run pays for importing sympy (0.6 s)."""
+    if not scene.manufactured:
+        return {}
+    from harness.mms import scene_macros
+
+    return scene_macros(scene, layout)
 
 
 def solver_command(
@@ -280,7 +289,7 @@ NEWTON_REASONS = {"diverged": Failure.DIVERGED, "max_iterations": Failure.MAX_IT
 
 def started_pressed(scene: Scene, guess: str) -> bool:
     """Whether a run started from the pressed guess, itself or down a chain that did."""
-    chained = scene.initial_guess == "coarser" and scene.table["scene"].get("coarsest_guess") == "pressed"
+    chained = scene.initial_guess == "coarser" and scene.sections.scene.coarsest_guess == "pressed"
     return guess == "pressed" or chained
 
 

@@ -63,7 +63,7 @@ def test_a_reduced_scene_equals_the_full_model_with_its_couplings_zeroed(tmp_pat
     full, full_fields = run(CASES / "paper.toml", 8, tmp_path / "f", *full_args)
     # The scenes share geometry, loads and contact data with the paper's (asserted, so the
     # comparison is of effects only).
-    assert load_scene(CASES / f"{scene}.toml").table["geometry"] == load_scene(CASES / "paper.toml").table["geometry"]
+    assert load_scene(CASES / f"{scene}.toml").sections.geometry == load_scene(CASES / "paper.toml").sections.geometry
     assert reduced["unknowns_per_node"] < full["unknowns_per_node"] == 4
     for field, values in reduced_fields.items():
         scale = np.abs(full_fields[field]).max()

@@ -19,7 +19,7 @@ from typing import Iterator
 
 import pytest
 
-from harness import atomic, cache, guards, stress
+from harness import atomic, cache, checks, guards
 from harness.cli import main
 from harness.layout import REPO, Layout
 
@@ -360,7 +360,7 @@ def test_solve_prints_the_checks_and_a_failed_check_exits_1(capsys, tmp_path, mo
     tolerance made impossible (monkeypatched), the command fails with the verdict code."""
     code, err, out = run(capsys, tmp_path, "solve", str(PAPER), "--n", "2", freefem=REPO / "freefem")
     assert code == 0 and "checks n=2: pass" in out, err
-    monkeypatch.setitem(stress.TOLERANCES, "charge", (-1.0, "impossible, for the test"))
+    monkeypatch.setitem(checks.TOLERANCES, "charge", (-1.0, "impossible, for the test"))
     code, err, out = run(capsys, tmp_path, "solve", str(PAPER), "--n", "2", freefem=REPO / "freefem")
     assert code == 1 and "checks n=2: FAIL charge" in out
     one_error(err, "physical checks failed at n = 2", "charge")

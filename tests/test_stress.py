@@ -24,8 +24,6 @@ COARSE = 8  # levels up to h = 1/8: the whole suite runs in a few seconds
 
 # Newton iterations per level measured at levels 2, 4, 8 (chains from the coarser level);
 # the bound is that plus 3. The default covers every case not listed (measured <= 7).
-MEASURED_ITERATIONS = {"gap_partial": 18, "unstructured": 9}
-DEFAULT_ITERATIONS = 7
 
 
 @pytest.fixture(scope="module")
@@ -42,11 +40,12 @@ def suite(tmp_path_factory) -> dict[str, tuple[stress.CaseResult, dict]]:
 def test_every_case_says_why_it_is_hard_and_known_failures_name_real_cases():
     assert len(CASES) >= 20
     for case in CASES:
-        assert len(stress.hard_because(case)) > 20, case
+        expect = load_scene(case).expect
+        assert len(expect.hard_because) > 20, case
+        assert len(expect.requirement) > 20 and expect.max_newton_iterations_why, case
         assert load_scene(case).name == case.stem  # results/stress/<case>/ is the case's own
-    assert set(stress.KNOWN_FAILURES) <= {c.stem for c in CASES}
-    for reason, why in stress.KNOWN_FAILURES.values():
-        assert reason in stress.STATUSES and why
+        if expect.status == "known_failure":
+            assert expect.failure in stress.STATUSES and expect.why
 
 
 def test_the_suite_covers_the_issue_list():
@@ -72,11 +71,11 @@ def test_the_suite_covers_the_issue_list():
 @pytest.mark.parametrize("case", [c.stem for c in CASES])
 def test_case_converges_with_its_checks_or_fails_as_known(suite, case):
     result, row = suite[case]
-    if case in stress.KNOWN_FAILURES:
-        reason, _ = stress.KNOWN_FAILURES[case]
+    expect = result.scene.expect
+    if expect.status == "known_failure":
         # Still failing, and for the listed reason: a fix (or a new way to fail) shows here.
         assert row["status"] == "known_failure", row["note"]
-        assert result.last.status == reason
+        assert result.last.status == expect.failure
         return
     assert row["status"] == "converged", row["note"]
     assert row["note"] == ""
@@ -84,7 +83,7 @@ def test_case_converges_with_its_checks_or_fails_as_known(suite, case):
     assert not failed, (failed, {k: row.get(k) for k in (
         "force_imbalance", "force_residual_bound", "max_sigma_nu", "sigma_nu_scale", "sigma_tau_excess", "heat_imbalance",
         "charge_imbalance", "heat_flux_open_error", "charge_flux_open_error")})
-    bound = MEASURED_ITERATIONS.get(case, DEFAULT_ITERATIONS) + 3
+    bound = expect.max_newton_iterations  # its why: the case file's max_newton_iterations_why
     assert all(run.record["newton_iterations"] <= bound for run in result.levels), row["iterations_per_level"]
 
 
@@ -92,7 +91,7 @@ def gamma3(result: stress.CaseResult):
     """Fields on Gamma_3 at the finest level run: x, penetration s, phi (or None)."""
     fields = read_fields(result.last.directory / "solution.vtu")
     nodes = np.concatenate(stress.contact_nodes(result.scene, fields))
-    s = -fields.field("u")[nodes, 1] - result.scene.table["contact"]["gap"]
+    s = -fields.field("u")[nodes, 1] - result.scene.sections.contact.gap
     phi = fields.field("phi")[nodes] if "phi" in fields.values else None
     return fields.points[nodes, 0], s, phi
 
@@ -116,14 +115,14 @@ def test_each_case_is_hard_the_way_its_header_says(suite):
     _, s, _ = gamma3(suite["gap_partial"][0])
     assert (s > 0).any() and (s <= 0).any()
     # Truncation: |phi - phi_f| > L at some node of Gamma_3.
-    table = suite["truncation_active"][0].scene.table["electric_contact"]
+    electric = suite["truncation_active"][0].scene.sections.electric_contact
     _, _, phi = gamma3(suite["truncation_active"][0])
-    assert np.abs(phi - table["phi_f"]).max() > table["L"]
+    assert np.abs(phi - electric.phi_f).max() > electric.L
     # Penetration against eps: from zero every solution stays on the conductance ramp
     # (0 < s < eps somewhere), even with eps = 1e-12; from the pressed start with eps = 1e-12
     # the conductances are saturated everywhere (a step).
     for case in ("eps_jump", "eps_large"):
-        eps = suite[case][0].scene.table["thermal_contact"]["eps_c"]
+        eps = suite[case][0].scene.sections.thermal_contact.eps_c
         _, s, _ = gamma3(suite[case][0])
         assert 0 < s.max() < eps
     _, s, _ = gamma3(suite["eps_jump_pressed"][0])

@@ -57,7 +57,7 @@ FACTS = ("max_theta", "min_phi", "max_phi", "max_abs_u", "contact_force", "heat_
 def branch_row(start: str, levels: Sequence[int], layout: Layout, jobs: int, force: bool) -> dict[str, Any]:
     scene = load_scene(PAPER, [f"scene.name={start}", *STARTS[start]])
     row: dict[str, Any] = {"start": start, "initial_guess": scene.initial_guess,
-                           "coarsest_guess": scene.table["scene"]["coarsest_guess"]}
+                           "coarsest_guess": scene.sections.scene.coarsest_guess}
     try:
         study = run_study(scene, tuple(levels), layout, jobs, force)
     except RunError as exc:

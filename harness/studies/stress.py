@@ -1,23 +1,25 @@
 """`python -m harness stress` (`make stress`): the stress suite of issue 4, into results/stress/.
 
-Every case file in cases/hard/ is the paper's scene with one thing made hard (its first line,
-`# hard_because = "..."`, says what). Each case runs its levels as a chain (each level from
+Every case file in cases/hard/ is the paper's scene with one thing made hard; its [expect]
+section says what (`hard_because`), what the case must show (`requirement`), the outcome
+expected (`status`: converged, or known_failure with its `failure` and `why`) and the
+tolerance of its test, with why (harness/schema.py). Each case runs its levels as a chain (each level from
 the one below, as `make convergence` does; the coarsest from the case's `coarsest_guess`)
 and is reported at its finest level, or at the level where it failed:
 
 - status: `converged`, or the classified reason of the failure (`diverged`, `max_iterations`,
   `nan` from FreeFEM's exit code and run.json; `timeout` when the harness killed it;
-  `freefem_error` for anything else), or `known_failure` for a case listed in
-  KNOWN_FAILURES that failed with the reason listed there;
+  `freefem_error` for anything else; harness/contract.py's Failure), or `known_failure`
+  for a case whose [expect] says so and that failed with the reason it names;
 - Newton's work: iterations (per level too), final relative residual per field, damped
   steps, active-set changes, wall time;
-- the physical checks of every converged run (`physical_checks`, tolerances in TOLERANCES).
+- the physical checks of every converged run (`physical_checks`, tolerances in harness/checks.py).
 
 Writes summary.csv (one row per case), summary.md (the same, short) and
 paper_iterations.csv: Newton iterations per level of the paper's scene with each level
 started from the coarser one, and with each level started from zero.
 Exit status 1 when a case fails unexpectedly, fails a check, or a known failure converges
-(so that a fix is noticed and the case leaves KNOWN_FAILURES).
+(so that a fix is noticed and the case's expectation is flipped).
 """
 
 from __future__ import annotations
@@ -25,7 +27,6 @@ from __future__ import annotations
 import argparse
 import math
 import time
-import tomllib
 from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Any, Sequence
@@ -37,7 +38,7 @@ from harness.arguments import add_common, add_levels, layout_of, level_list, nam
 from harness.checks import CHECK_FLAGS, contact_nodes, physical_checks
 from harness.contract import Failure
 from harness.engine import InlineMeshes, LevelOutcome, quiet, run_chain
-from harness.errors import HarnessError, SceneError, VerdictError
+from harness.errors import SceneError, VerdictError
 from harness.fields import read_fields
 from harness.freefem import freefem_version
 from harness.layout import REPO, Layout
@@ -51,41 +52,6 @@ RESULTS = REPO / "results" / "stress"
 PAPER_LEVELS = (2, 4, 8, 16, 32, 64)
 
 STATUSES = ("converged", "diverged", "max_iterations", "nan", "freefem_error", "timeout", "known_failure")
-
-# Cases that do not converge with the present solver: case -> (the classified reason they
-# fail with, why). They stay in the suite and are reported, never skipped; the tests assert
-# that they still fail this way, so a solver change that fixes one is noticed.
-KNOWN_FAILURES: dict[str, tuple[str, str]] = {
-    "no_piezo": (
-        "max_iterations",
-        "from zero at n = 2 the active set settles at 2 of 5 nodes after 2 iterations, but the "
-        "consistent-tangent step stays O(1) (relative increment 1.3) and raises ||R||: most steps "
-        "are cut to 1/64-1/32 (1/64 taken even when ||R|| grows); ||R_u|| creeps from 5e-7 to 2e-6. "
-        "The hot pressed branch is the solution found (no_piezo_pressed, 3 iterations a level)",
-    ),
-    "phi_plus": (
-        "max_iterations",
-        "from zero at n = 2 a period-3 cycle: from the open state no damped step lowers ||R||, "
-        "the forced 1/64 step closes all 5 nodes (||R_phi|| 1e-3 -> 5.5e2), the next full step "
-        "opens them all again. The pressed branch exists (phi_plus_pressed converges)",
-    ),
-    "friction_large_shear": (
-        "max_iterations",
-        "from zero at n = 2 a period-2 cycle from iteration 27 on with the consistent tangent and "
-        "no nodal state change (1 active node): steps 1/64 and 1 alternate, ||R_phi|| 4e5 / 38 "
-        "(presumably a kink crossed at a Gauss point between nodes, which the nodal active set "
-        "does not see). "
-        "The pressed start converges (friction_large_shear_pressed)",
-    ),
-}
-
-def hard_because(case: Path) -> str:
-    """The case's first line, `# hard_because = "..."`."""
-    first = case.read_text().splitlines()[0] if case.is_file() else ""
-    try:
-        return str(tomllib.loads(first.lstrip("# "))["hard_because"])
-    except (tomllib.TOMLDecodeError, KeyError):
-        raise HarnessError(f"{case}: the first line must be `# hard_because = \"...\"`") from None
 
 
 @dataclass(frozen=True)
@@ -168,20 +134,21 @@ def newton_work(record: dict[str, Any] | None) -> dict[str, Any]:
 
 
 def summary_row(result: CaseResult) -> dict[str, Any]:
-    last = result.last
-    known = KNOWN_FAILURES.get(result.case)
+    last, expect = result.last, result.scene.expect
+    known = expect.status == "known_failure"
     status, note = last.status, ""
     if last.status != "converged":
         failure = f"{last.status} at n={last.n}"
-        if known and known[0] == last.status:
-            status, note = "known_failure", f"{failure}: {known[1]}"
+        if known and expect.failure == last.status:
+            status, note = "known_failure", f"{failure}: {expect.why}"
         else:
             note = f"{failure}: {last.detail}"
     elif known:
-        note = f"listed as a known failure ({known[0]}) but converged: take it out of KNOWN_FAILURES"
+        note = (f"expected to fail ({expect.failure}) but converged: set expect.status = \"converged\" "
+                f"in {result.scene.source}")
     row: dict[str, Any] = {
         "case": result.case,
-        "hard_because": hard_because(result.scene.source),
+        "hard_because": expect.hard_because,
         "status": status,
         "note": note,
         "levels": " ".join(str(r.n) for r in result.levels),
