@@ -11,6 +11,7 @@ import numpy as np
 
 from harness.errors import HarnessError
 from harness.fields import Fields
+from harness.record import RunRecord
 from harness.scene import Scene
 
 # Tolerances of the physical checks, each relative to the named scale, and why.
@@ -85,11 +86,11 @@ FLOOR = 1e-10  # of natural_fluxes (times |Gamma_3| for a total): "no flux at al
 NOTHING_FLOWS = 1e-30
 
 
-def physical_checks(record: dict[str, Any], scene: Scene) -> dict[str, Any]:
+def physical_checks(record: RunRecord, scene: Scene) -> dict[str, Any]:
     """The checks of issue 4 on a converged run: values, the scale each is relative to, and
     a pass flag per check (TOLERANCES). Every quantity is FreeFEM's (freefem/checks.idp);
-    this only compares."""
-    c = record.get("checks") or {}
+    this only compares (`checks` holds the keys record.CHECK_KEYS declares)."""
+    c = record.checks or {}
     tol = {name: value for name, (value, _) in TOLERANCES.items()}
     length = contact_length(scene)
     applied = float(np.hypot(*c.get("applied_load", [0.0, 0.0])))
@@ -110,8 +111,8 @@ def physical_checks(record: dict[str, Any], scene: Scene) -> dict[str, Any]:
         "sigma_tau_excess": (tau - S) / (S + 1e-4 * sigma_scale) if math.isfinite(S) else -1.0,
     }
     natural = natural_fluxes(scene)
-    flows = {"heat": (record.get("heat_in_contact", 0.0), c.get("heat_source", 0.0), c.get("heat_out_dirichlet", 0.0)),
-             "charge": (record.get("charge_in_contact", 0.0), c.get("charge_source", 0.0), c.get("charge_out_dirichlet", 0.0))}
+    flows = {"heat": (record.heat_in_contact or 0.0, c.get("heat_source", 0.0), c.get("heat_out_dirichlet", 0.0)),
+             "charge": (record.charge_in_contact or 0.0, c.get("charge_source", 0.0), c.get("charge_out_dirichlet", 0.0))}
     for name, (into, source, leaving) in flows.items():
         # FreeFEM's {name}_imbalance, with a floor for a contact that carries nothing.
         scale = max(abs(into), abs(source), abs(leaving), FLOOR * natural[name] * length, NOTHING_FLOWS)

@@ -22,13 +22,14 @@ import time
 from concurrent.futures import Executor, ProcessPoolExecutor, ThreadPoolExecutor, as_completed
 from dataclasses import dataclass
 from pathlib import Path
-from typing import Any, Callable, Iterator, Mapping, Sequence
+from typing import Callable, Iterator, Mapping, Sequence
 
 from harness import freefem, signals
 from harness.contract import Failure
 from harness.errors import RunError
 from harness.layout import Layout
 from harness.mesh import build_graded_mesh, build_mesh
+from harness.record import RunRecord
 from harness.run import LevelRun, RunResult, WarmStart, read_record, run_level
 from harness.scene import Scene
 
@@ -51,7 +52,7 @@ class LevelOutcome:
     run: RunResult | None = None
     failure: Failure | None = None
     detail: str = ""  # the harness's one-line message for a failure
-    record: dict[str, Any] | None = None  # run.json (of the failed run, when it wrote one)
+    record: RunRecord | None = None  # run.json (of the failed run, when it wrote one)
     directory: Path | None = None  # the run's directory (the failed one for a failure)
     wall_s: float = math.nan
 
@@ -61,7 +62,7 @@ class LevelOutcome:
 
     @classmethod
     def of_run(cls, run: RunResult) -> LevelOutcome:
-        return cls(run.n, run, None, "", run.record, run.directory, run.record.get("wall_s", math.nan))
+        return cls(run.n, run, None, "", run.record, run.directory, run.record.value("wall_s"))
 
     @classmethod
     def of_failure(cls, n: int, exc: RunError, failed: Path, wall_s: float) -> LevelOutcome:
@@ -275,10 +276,10 @@ def describe(outcome: LevelOutcome) -> str:
         return "FAILED"
     run = outcome.run
     assert run is not None
-    its = run.record.get("newton_iterations", "?")
+    its = run.record.newton_iterations
     if run.reused:
         return f"reused (inputs unchanged), {its} Newton its"
-    return f"done in {run.record.get('wall_s', math.nan):.1f} s, {its} Newton its"
+    return f"done in {run.record.value('wall_s'):.1f} s, {its} Newton its"
 
 
 def timed_meshes(scene: Scene, levels: Sequence[int], layout: Layout,

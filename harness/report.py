@@ -61,7 +61,7 @@ def summary(study: Study) -> dict[str, Any]:
         "share_of_total_at_finest": {f: finest[f"err_{f}"] / finest["err_total"] for f in study.fields},
         "sweep_wall_s": study.wall_s,
         # Each level's cache key: a level dir whose inputs.json differs is not this study's run.
-        "runs": {str(n): {**{k: run.record.get(k) for k in RUN_FACTS}, "key": run.key}
+        "runs": {str(n): {**{k: getattr(run.record, k) for k in RUN_FACTS}, "key": run.key}
                  for n, run in sorted(study.runs.items())},
         "scene": study.scene.table,
         "tools": tool_versions(),

@@ -18,6 +18,7 @@ from harness.errors import EnvironmentFault, RunError, SceneError
 from harness.faults import disk_full
 from harness.signals import CHILDREN, Interrupted
 from harness.layout import Layout
+from harness.record import RunRecord, read_run_json, write_run_json
 from harness.scene import Scene
 from harness.script import main_script
 
@@ -49,7 +50,7 @@ def start_of(scene: Scene, warm: WarmStart | None) -> tuple[str, WarmStart | Non
 class RunResult:
     n: int
     directory: Path
-    record: dict[str, Any]  # run.json, plus the harness's wall_s
+    record: RunRecord  # run.json, with the harness's measurements
     reused: bool
     key: str = ""  # the cache key it was run or reused under
 
@@ -251,35 +252,34 @@ def solver_command(
 def collect(
     work: Path, scene: Scene, n: int, layout: Layout, outcome: freefem.Outcome, guess: str, start: WarmStart | None,
     waited: float | None = None,
-) -> dict[str, Any]:
+) -> RunRecord:
     """run.json of a finished run, with the harness's measurements (a pipelined run's wall
     time less its `waited` seconds); a RunError with the reason if it failed."""
     where = f"{scene.name} n={n}"
     log = log_file(work, layout.failed_dir(scene.name, n))
-    record = read_record(work)
+    record = read_run_json(work)
     if outcome.returncode != 0:
-        detail = (record or {}).get("reason") or freefem.error_detail(read_logs(work))
+        detail = (record.reason if record else None) or freefem.error_detail(read_logs(work))
         reason = freefem.failure_reason(outcome, scene.timeout_s, str(detail), started_pressed(scene, guess))
         raise RunError(f"{where}: {reason} (see {log})", freefem.failure_of(outcome))
     if record is None:
         raise RunError(f"{where}: FreeFEM wrote no readable run.json (see {log})", Failure.NO_OUTPUT)
-    if record.get("converged") is not True:
-        raise RunError(f"{where}: not converged: {record.get('reason', 'no reason given')} (see {log})",
-                       NEWTON_REASONS.get(str(record.get("reason")), Failure.NOT_CONVERGED))
+    if record.converged is not True:
+        raise RunError(f"{where}: not converged: {record.reason or 'no reason given'} (see {log})",
+                       NEWTON_REASONS.get(str(record.reason), Failure.NOT_CONVERGED))
     if not (work / "solution.vtu").is_file():
         raise RunError(f"{where}: FreeFEM wrote no solution.vtu (see {log})", Failure.NO_OUTPUT)
-    record["wall_s"] = outcome.wall_s
+    record = record.with_(wall_s=outcome.wall_s)
     if waited is not None:
-        record.update(pipelined=True, waited_s=waited, wall_s=outcome.wall_s - waited)
+        record = record.with_(pipelined=True, waited_s=waited, wall_s=outcome.wall_s - waited)
     # FreeFEM's own VmHWM (memory.idp); wait4's figure, which cannot read below the harness's
     # resident size at fork time, only where /proc is missing.
-    own = record.get("peak_rss_mb", -1) > 0
-    record["peak_rss_source"] = "freefem VmHWM" if own else "harness wait4"
-    if not own:
-        record["peak_rss_mb"] = outcome.peak_rss_mb
-    record["initial_guess"] = scene.initial_guess
-    record["started_from"] = guess if not start else f"file {start.state}"
-    write_atomic(work / "run.json", json.dumps(record, indent=2) + "\n")
+    own = (record.peak_rss_mb or -1) > 0
+    record = record.with_(peak_rss_source="freefem VmHWM" if own else "harness wait4",
+                          peak_rss_mb=record.peak_rss_mb if own else outcome.peak_rss_mb,
+                          initial_guess=scene.initial_guess,
+                          started_from=guess if not start else f"file {start.state}")
+    write_run_json(record, work)
     return record
 
 
@@ -293,12 +293,9 @@ def started_pressed(scene: Scene, guess: str) -> bool:
     return guess == "pressed" or chained
 
 
-def read_record(work: Path) -> dict[str, Any] | None:
-    try:
-        record = json.loads((work / "run.json").read_text())
-    except (OSError, ValueError):
-        return None
-    return record if isinstance(record, dict) else None
+def read_record(work: Path) -> RunRecord | None:
+    """The run.json a run left in `work` (None: none readable)."""
+    return read_run_json(work)
 
 
 def read_logs(work: Path) -> str:

@@ -44,7 +44,7 @@ def check_run(scene: Scene, run: RunResult) -> Checked:
         warning = small_strain_warning(gradient, f"{scene.name} n={run.n}")
         if warning:
             warnings.append(warning)
-    if not record.get("checks"):
+    if not record.checks:
         return Checked(run.n, f"checks n={run.n}: none reported by the solver", True, tuple(warnings))
     values = physical_checks(record, scene)
     failed = [flag for flag in CHECK_FLAGS if not values.get(flag)]

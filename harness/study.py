@@ -64,7 +64,7 @@ def run_study(
     start = time.perf_counter()
     with BackgroundMeshes(scene, levels, layout) as meshes:
         runs = runs_of(study_outcomes(scene, meshes, layout, jobs, force, progress))
-    fields = tuple(f for f in NORMED_FIELDS if f in runs[levels[-1]].record.get("fields", NORMED_FIELDS))
+    fields = tuple(f for f in NORMED_FIELDS if f in (runs[levels[-1]].record.fields or NORMED_FIELDS))
     table = error_table(runs, fields)
     return Study(scene, fields, table, slopes(table, fields), runs, time.perf_counter() - start)
 
@@ -83,9 +83,9 @@ def error_table(runs: dict[int, RunResult], fields: tuple[str, ...]) -> pd.DataF
         row = {
             "n": n,
             "h": 1.0 / n,
-            "dofs": record.get("dofs"),
-            "newton_iterations": record.get("newton_iterations"),
-            "wall_s": record.get("wall_s"),
+            "dofs": record.dofs,
+            "newton_iterations": record.newton_iterations,
+            "wall_s": record.wall_s,
         }
         row.update({f"err_{f}": errors[f] for f in fields})
         row["err_total"] = sum(errors.values())

@@ -12,6 +12,7 @@ import numpy as np
 import pytest
 
 from harness.cli import main
+from harness.record import read_run_json
 from harness.errors import SceneError
 from harness.fields import read_fields
 from harness.layout import REPO
@@ -38,9 +39,9 @@ def run(case: Path, n: int, results: Path, *argv: str) -> tuple[dict, dict[str, 
     assert main(["solve", str(case), "--n", str(n), "--results", str(results), *argv]) == 0
     name = next((a.split("=", 1)[1] for a in argv if a.startswith("scene.name=")), load_scene(case).name)
     directory = results / name / f"n{n}"
-    record = json.loads((directory / "run.json").read_text())
+    record = read_run_json(directory)
     fields = read_fields(directory / "solution.vtu")
-    return record, {f: fields.field(f) for f in record["fields"]}
+    return record, {f: fields.field(f) for f in record.fields}
 
 
 # (reduced scene, material tensors that vanish with the effects it leaves off, conductance
@@ -88,11 +89,11 @@ def test_a_reduced_scene_equals_the_full_model_with_its_couplings_zeroed(tmp_pat
 )
 def test_unknowns_per_node_and_fields_follow_the_effects(tmp_path, case, unknowns, fields, strategy):
     record, values = run(CASES / f"{case}.toml", 4, tmp_path)
-    assert record["unknowns_per_node"] == unknowns
-    assert record["dofs"] == unknowns * record["nodes"]  # P1: one value per node and unknown
-    assert record["fields"] == fields and sorted(values) == sorted(fields)
-    assert record["strategy"].startswith(strategy)
-    assert record["converged"]
+    assert record.unknowns_per_node == unknowns
+    assert record.dofs == unknowns * record.nodes  # P1: one value per node and unknown
+    assert record.fields == fields and sorted(values) == sorted(fields)
+    assert record.strategy.startswith(strategy)
+    assert record.converged
 
 
 def conductances_off() -> list[str]:
@@ -147,7 +148,7 @@ def test_data_of_an_effect_that_is_off_is_a_warning_and_not_passed_on():
 
 def test_the_command_line_switches_effects(tmp_path, capsys):
     record, values = run(CASES / "paper.toml", 2, tmp_path, "--effects", "contact,friction")
-    assert record["fields"] == ["u"] and record["unknowns_per_node"] == 2
+    assert record.fields == ["u"] and record.unknowns_per_node == 2
     assert "warning: thermal_contact.k_c is ignored" in capsys.readouterr().err
 
 
@@ -183,5 +184,5 @@ def test_every_valid_combination_of_effects_compiles_and_solves(tmp_path):
         except RunError as exc:
             failed.append(f"{combo}: {exc}")
             continue
-        assert record["unknowns_per_node"] == 2 + ("piezoelectric" in combo) + ("thermal" in combo)
+        assert record.unknowns_per_node == 2 + ("piezoelectric" in combo) + ("thermal" in combo)
     assert not failed, "\n".join(failed)

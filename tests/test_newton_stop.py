@@ -27,8 +27,8 @@ def test_the_contraction_stop_is_as_accurate_as_rtol_promises(tmp_path):
     meshes = {n: build_mesh(scene.geometry, n, layout.meshes_dir(scene.name)).path for n in levels}
     runs = runs_of(run_chain(scene, meshes, layout, False, lambda s: None))
     stopped = runs[16].record
-    last = stopped["newton_iterations"]
-    increments, estimates = stopped["increments"], stopped["error_estimates"]
+    last = stopped.newton_iterations
+    increments, estimates = stopped.increments, stopped.error_estimates
     # This level is accepted on the estimate: its last increment alone would not pass.
     assert max(increments[f][last] for f in increments) > RTOL
     assert max(estimates[f][last] for f in estimates) <= RTOL
@@ -36,7 +36,7 @@ def test_the_contraction_stop_is_as_accurate_as_rtol_promises(tmp_path):
     tight = load_scene(CASE, ["newton.rtol=1e-12", 'scene.name="tight"'])
     warm = runs[8].warm_start(meshes[8])
     exact = run_level(tight, meshes[16], 16, layout, warm=warm)
-    assert exact.record["newton_iterations"] > last
+    assert exact.record.newton_iterations > last
     for mine, converged in zip(read_state(runs[16].directory / "state.txt"),
                                read_state(exact.directory / "state.txt")):
         scale = np.abs(converged).max()

@@ -14,6 +14,7 @@ import pytest
 from harness.studies import stress
 from harness.contract import Failure
 from harness.errors import RunError
+from harness.record import RunRecord, read_run_json
 from harness.run import read_record
 from harness.fields import read_fields
 from harness.layout import Layout
@@ -84,7 +85,7 @@ def test_case_converges_with_its_checks_or_fails_as_known(suite, case):
         "force_imbalance", "force_residual_bound", "max_sigma_nu", "sigma_nu_scale", "sigma_tau_excess", "heat_imbalance",
         "charge_imbalance", "heat_flux_open_error", "charge_flux_open_error")})
     bound = expect.max_newton_iterations  # its why: the case file's max_newton_iterations_why
-    assert all(run.record["newton_iterations"] <= bound for run in result.levels), row["iterations_per_level"]
+    assert all(run.record.newton_iterations <= bound for run in result.levels), row["iterations_per_level"]
 
 
 def gamma3(result: stress.CaseResult):
@@ -156,7 +157,7 @@ def test_newton_failures_are_classified_from_run_json(tmp_path, reason):
     (tmp_path / "run.json").write_text(json.dumps({"reason": reason, "converged": False}))
     record = read_record(tmp_path)
     status = stress.classify(RunError("x n=2: Newton ...", Failure.OTHER).failure, record)
-    assert status == reason and record["reason"] == reason
+    assert status == reason and record.reason == reason
 
 
 def test_a_timeout_and_a_freefem_error_are_classified_from_the_message(tmp_path):
@@ -166,13 +167,13 @@ def test_a_timeout_and_a_freefem_error_are_classified_from_the_message(tmp_path)
     assert stress.classify(compile_error.failure, read_record(tmp_path)) == "freefem_error"
 
 
-def paper_record(**checks) -> dict:
+def paper_record(**checks) -> RunRecord:
     base = {"applied_load": [0.0, -200.0], "force_imbalance": 1e-14, "max_sigma_nu": -1e-7,
             "min_sigma_nu": -3e-6, "max_abs_sigma_tau": 0.02, "S": 8.5, "heat_source": 0.0,
             "heat_out_dirichlet": 1e-4, "max_heat_flux_contact": 1e-4, "max_heat_flux_open": 0.0,
             "charge_source": 0.0, "charge_out_dirichlet": -5e-7, "max_charge_flux_contact": 3e-7,
             "max_charge_flux_open": 0.0}
-    return {"heat_in_contact": 1e-4, "charge_in_contact": -5e-7, "checks": {**base, **checks}}
+    return RunRecord(heat_in_contact=1e-4, charge_in_contact=-5e-7, checks={**base, **checks})
 
 
 @pytest.mark.parametrize("checks, flag", [
@@ -216,8 +217,8 @@ def test_open_node_fluxes_skip_the_theta_dirichlet_end_of_gamma3(tmp_path):
 
     assert main(["solve", str(stress.PAPER), "--n", "2", "--results", str(tmp_path),
                  "--set", "scene.name=g9", "--set", "contact.gap=1e-9"]) == 0
-    record = json.loads((tmp_path / "g9" / "n2" / "run.json").read_text())
-    c = record["checks"]
+    record = read_run_json(tmp_path / "g9" / "n2")
+    c = record.checks
     assert c["open_nodes"] > 0
     # An open node next to a closed one carries charge through the closed Gauss point.
     assert c["max_charge_flux_open_expected"] > 1e-9

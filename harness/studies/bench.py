@@ -31,7 +31,6 @@ number measured under load is a different number.
 from __future__ import annotations
 
 import argparse
-import json
 import os
 import platform
 import shutil
@@ -50,6 +49,7 @@ from harness.arguments import add_case, add_levels, name_list, positive_int
 from harness.engine import freefem_startup_s, quiet, run_chain, runs_of, timed_meshes
 from harness.errors import HarnessError
 from harness.layout import REPO, Layout
+from harness.record import read_run_json
 from harness.run import WarmStart, run_level
 from harness.scene import Scene, load_scene
 from harness.schema import LINEAR_SOLVERS
@@ -95,9 +95,9 @@ def repeat_level(scene: Scene, mesh: Path, n: int, layout: Layout, warm: WarmSta
     out = []
     for i in range(repeats):
         run = run_level(scene, mesh, n, layout, force=True, warm=warm)
-        out.append({k: run.record.get(k) for k in FINEST_KEYS})
-        say(f"{label} n={n} #{i + 1}: {run.record['wall_s']:.2f} s, {run.record['newton_iterations']} Newton its, "
-            f"newton_over_linear {run.record.get('newton_over_linear', float('nan')):.2f}")
+        out.append({k: getattr(run.record, k) for k in FINEST_KEYS})
+        say(f"{label} n={n} #{i + 1}: {run.record.wall_s:.2f} s, {run.record.newton_iterations} Newton its, "
+            f"newton_over_linear {run.record.value('newton_over_linear'):.2f}")
     return out
 
 
@@ -128,9 +128,9 @@ def bench_sweep(case: Path, overrides: Sequence[str], levels: Sequence[int], rep
             study = run_study(scene, tuple(levels), layout, jobs=os.cpu_count() or 1, force=True,
                               progress=lambda s: None)
             finest = study.runs[max(levels)].record
-            out.append({"sweep_s": study.wall_s, "finest_in_sweep_s": finest["wall_s"],
-                        "sweep_over_finest": study.wall_s / finest["wall_s"],
-                        "runs_s": sum(r.record["wall_s"] for r in study.runs.values())})
+            out.append({"sweep_s": study.wall_s, "finest_in_sweep_s": finest.wall_s,
+                        "sweep_over_finest": study.wall_s / finest.wall_s,
+                        "runs_s": sum(r.record.wall_s for r in study.runs.values())})
         say(f"sweep #{i + 1}: {out[-1]['sweep_s']:.2f} s, finest in it {out[-1]['finest_in_sweep_s']:.2f} s")
     return out
 
@@ -173,10 +173,11 @@ def bench_process(case: Path, overrides: Sequence[str], levels: Sequence[int], r
             if done.returncode not in (0, 1):  # 1: a failed check, still a finished run
                 raise HarnessError(f"harness solve failed: {done.stderr.strip()[-300:]}")
             scene = load_scene(case, overrides)
-            record = json.loads((Layout(results=Path(tmp)).level_dir(scene.name, finest) / "run.json").read_text())
-        out.append({"process_s": wall, "finest_freefem_s": record["wall_s"],
-                    "process_over_finest": wall / record["wall_s"]})
-        say(f"process #{i + 1}: {wall:.2f} s, its FreeFEM run of n={finest} {record['wall_s']:.2f} s")
+            record = read_run_json(Layout(results=Path(tmp)).level_dir(scene.name, finest))
+        if record is None or record.wall_s is None:
+            raise HarnessError(f"harness solve left no run.json of n={finest}")
+        out.append({"process_s": wall, "finest_freefem_s": record.wall_s, "process_over_finest": wall / record.wall_s})
+        say(f"process #{i + 1}: {wall:.2f} s, its FreeFEM run of n={finest} {record.wall_s:.2f} s")
     return out
 
 

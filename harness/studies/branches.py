@@ -65,8 +65,8 @@ def branch_row(start: str, levels: Sequence[int], layout: Layout, jobs: int, for
     write_report(study, layout)
     finest = study.runs[study.reference].record
     row.update({"status": "converged", "note": "", "n_finest": study.reference})
-    row.update({key: finest.get(key, math.nan) for key in FACTS})
-    row["newton_iterations"] = " ".join(str(study.runs[n].record.get("newton_iterations")) for n in sorted(study.runs))
+    row.update({key: finest.value(key) for key in FACTS})
+    row["newton_iterations"] = " ".join(str(study.runs[n].record.newton_iterations) for n in sorted(study.runs))
     for name, fits in study.slopes.items():
         row[f"slope_{name}"] = fits["all"]
     # The stress suite's physical checks on every level of the branch.

@@ -46,6 +46,7 @@ from harness.engine import InlineMeshes, freefem_startup_s, quiet, run_chain, ru
 from harness.errors import SceneError
 from harness.layout import REPO, Layout
 from harness.rates import slope_fit
+from harness.record import RunRecord
 from harness.run import RunResult, check_solver_files
 from harness.scene import Scene, load_scene
 from harness.writers import write_csv, write_json, write_text, write_with
@@ -218,35 +219,35 @@ def row_of(
     finer_than_reference: bool = False,
 ) -> dict[str, Any]:
     r = run.record
-    reference_s = float(r.get("reference_s", 0.0))
-    errors = {} if finer_than_reference else r.get("reference_errors", {})
-    wall = float(r.get("wall_s", math.nan)) - reference_s
-    total = float(r.get("total_s", math.nan)) - reference_s
+    reference_s = float(r.reference_s or 0.0)
+    errors = {} if finer_than_reference else (r.reference_errors or {})
+    wall = float(r.value("wall_s")) - reference_s
+    total = float(r.value("total_s")) - reference_s
     row = {
         "scene": scene_name,
         "discretisation": disc,
         "element": element,
         "n": run.n,
         "h": 1.0 / run.n,
-        "dofs": r.get("dofs"),
-        "newton_iterations": r.get("newton_iterations"),
-        "factorisations": r.get("factorisations"),
-        "gmres_iterations": r.get("gmres_iterations"),
+        "dofs": r.dofs,
+        "newton_iterations": r.newton_iterations,
+        "factorisations": r.factorisations,
+        "gmres_iterations": r.gmres_iterations,
         "mesh_s": mesh_s,
         "startup_s": startup_s,
-        "bulk_assembly_s": r.get("bulk_assembly_s"),
-        "assembly_s": r.get("assembly_s"),
-        "factorisation_s": r.get("factorisation_s"),
-        "first_factorisation_s": r.get("first_factorisation_s"),
-        "solve_s": r.get("solve_s"),
-        "newton_s": r.get("newton_s"),
-        "output_s": r.get("output_s"),
+        "bulk_assembly_s": r.bulk_assembly_s,
+        "assembly_s": r.assembly_s,
+        "factorisation_s": r.factorisation_s,
+        "first_factorisation_s": r.first_factorisation_s,
+        "solve_s": r.solve_s,
+        "newton_s": r.newton_s,
+        "output_s": r.output_s,
         "total_s": total,
         "wall_s": wall,
         "reference_s": reference_s,
-        "peak_rss_mb": r.get("peak_rss_mb"),
-        "rss_source": r.get("peak_rss_source"),
-        "newton_over_linear": r.get("newton_over_linear"),
+        "peak_rss_mb": r.peak_rss_mb,
+        "rss_source": r.peak_rss_source,
+        "newton_over_linear": r.newton_over_linear,
         "reused": run.reused,
     }
     for name in FIELDS:
@@ -341,8 +342,8 @@ def scaling_rows(
     return rows
 
 
-def reference_norms(record: dict[str, Any]) -> dict[str, float]:
-    norms = dict(record.get("reference_norms", {}))
+def reference_norms(record: RunRecord) -> dict[str, float]:
+    norms = dict(record.reference_norms or {})
     if norms:
         norms["total"] = sum(norms.values())
     return norms

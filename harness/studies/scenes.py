@@ -27,14 +27,14 @@ def scene_row(study: Study) -> dict[str, Any]:
     row: dict[str, Any] = {
         "scene": study.scene.name,
         "effects": " ".join(study.scene.effects),
-        "strategy": finest.get("strategy"),
-        "unknowns_per_node": finest.get("unknowns_per_node"),
+        "strategy": finest.strategy,
+        "unknowns_per_node": finest.unknowns_per_node,
         "n": study.reference,
-        "dofs": finest.get("dofs"),
-        "wall_s": finest.get("wall_s"),
-        "newton_iterations": finest.get("newton_iterations"),
+        "dofs": finest.dofs,
+        "wall_s": finest.wall_s,
+        "newton_iterations": finest.newton_iterations,
         "sweep_wall_s": study.wall_s,
-        "peak_rss_mb": finest.get("peak_rss_mb"),
+        "peak_rss_mb": finest.peak_rss_mb,
     }
     for field in NORMED_FIELDS:
         row[f"slope_{field}"] = study.slopes[field]["all"] if field in study.fields else float("nan")

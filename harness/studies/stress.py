@@ -42,6 +42,7 @@ from harness.errors import SceneError, VerdictError
 from harness.fields import read_fields
 from harness.freefem import freefem_version
 from harness.layout import REPO, Layout
+from harness.record import RunRecord
 from harness.run import check_solver_files
 from harness.scene import Scene, load_scene
 from harness.writers import cell, write_csv, write_text
@@ -59,7 +60,7 @@ class Level:
     n: int
     status: str  # converged or the classified failure
     detail: str  # the harness's message for a failure
-    record: dict[str, Any] | None  # run.json (of the failed run for a failure, when written)
+    record: RunRecord | None  # run.json (of the failed run for a failure, when written)
     directory: Path
     wall_s: float
 
@@ -80,9 +81,9 @@ STATUS_OF = {Failure.DIVERGED: "diverged", Failure.MAX_ITERATIONS: "max_iteratio
              Failure.TIMEOUT: "timeout"}
 
 
-def classify(failure: Failure | None, record: dict[str, Any] | None) -> str:
+def classify(failure: Failure | None, record: RunRecord | None) -> str:
     """The reason a run failed: Newton's own (run.json), or the harness's classified failure."""
-    reason = (record or {}).get("reason")
+    reason = record.reason if record else None
     if reason in ("diverged", "max_iterations", "nan"):
         return str(reason)
     return STATUS_OF.get(failure, "freefem_error") if failure else "freefem_error"
@@ -105,31 +106,31 @@ def run_case(case: Path, layout: Layout, force: bool = False, levels: Sequence[i
 
 # ---- the table ---------------------------------------------------------------------------
 
-def relative_residuals(record: dict[str, Any]) -> dict[str, float]:
+def relative_residuals(record: RunRecord) -> dict[str, float]:
     """Final residual of each field over the largest in its history (the first one, unless
     the initial guess zeroes that field's residual, as zero does for phi and theta)."""
     out = {}
     for name in ("u", "phi", "theta"):
-        history = [abs(v) for v in (record.get("residuals") or {}).get(name, [])]
+        history = [abs(v) for v in (record.residuals or {}).get(name, [])]
         top = max(history, default=0.0)
         out[f"residual_{name}"] = history[-1] / top if top > 0 else (0.0 if history else math.nan)
     return out
 
 
-def newton_work(record: dict[str, Any] | None) -> dict[str, Any]:
+def newton_work(record: RunRecord | None) -> dict[str, Any]:
     if not record:
         return {}
-    damping = record.get("damping", [])[1:]
+    damping = (record.damping or [])[1:]
     return {
-        "newton_iterations": record.get("newton_iterations"),
+        "newton_iterations": record.newton_iterations,
         **relative_residuals(record),
         # the stopping test's own quantity: the last full Newton step relative to each field
-        **{f"increment_{f}": (v or [math.nan])[-1] for f, v in (record.get("increments") or {}).items()},
+        **{f"increment_{f}": (v or [math.nan])[-1] for f, v in (record.increments or {}).items()},
         "damping_steps": sum(1 for a in damping if a < 1),
         "min_damping": min(damping, default=math.nan),
-        "active_set_changes": sum(record.get("active_set_changes", [])),
-        "active_nodes": (record.get("active_nodes") or [None])[-1],
-        "slip_nodes": (record.get("slip_nodes") or [None])[-1],
+        "active_set_changes": sum(record.active_set_changes or []),
+        "active_nodes": (record.active_nodes or [None])[-1],
+        "slip_nodes": (record.slip_nodes or [None])[-1],
     }
 
 
@@ -153,15 +154,15 @@ def summary_row(result: CaseResult) -> dict[str, Any]:
         "note": note,
         "levels": " ".join(str(r.n) for r in result.levels),
         "n": last.n,
-        "iterations_per_level": " ".join(str((r.record or {}).get("newton_iterations", "?")) for r in result.levels),
+        "iterations_per_level": " ".join(str(r.record.newton_iterations if r.record else "?") for r in result.levels),
         **newton_work(last.record),
         "wall_s": last.wall_s,
         "total_wall_s": sum(r.wall_s for r in result.levels),
     }
-    record = last.record or {}
+    record = last.record or RunRecord()
     for key in ("max_abs_u", "min_phi", "max_phi", "max_theta", "contact_force", "active_length",
                 "heat_in_contact", "charge_in_contact"):
-        row[key] = record.get(key, math.nan)
+        row[key] = record.value(key)
     if last.status == "converged":
         fields = read_fields(last.directory / "solution.vtu")
         row["gamma3_nodes"] = len(np.unique(np.concatenate(contact_nodes(result.scene, fields))))
@@ -187,11 +188,11 @@ def paper_iterations(layout: Layout, levels: Sequence[int], force: bool = False)
         scene = load_scene(PAPER, overrides)
         outcomes = run_chain(scene, InlineMeshes(scene, levels, layout), layout, force, quiet, pipelined=False)
         for level in map(level_of, outcomes.values()):
-            record = level.record or {}
+            record = level.record or RunRecord()
             row = {"start": start, "n": level.n, "status": level.status, **newton_work(level.record)}
             if level.status == "converged":
-                row.update({"wall_s": record.get("wall_s"), "max_theta": record.get("max_theta"),
-                            "contact_force": record.get("contact_force")})
+                row.update({"wall_s": record.wall_s, "max_theta": record.max_theta,
+                            "contact_force": record.contact_force})
             rows.append(row)
     return pd.DataFrame(rows)
 

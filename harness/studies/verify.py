@@ -61,7 +61,7 @@ def mms_errors(scene: Scene, levels: Sequence[int], layout: Layout, jobs: int = 
     runs = runs_of(study_outcomes(scene, meshes, layout, jobs, force, progress))
     rows = []
     for n, run in sorted(runs.items()):
-        errors, norms = run.record.get("mms_errors"), run.record.get("mms_norms")
+        errors, norms = run.record.mms_errors, run.record.mms_norms
         if not isinstance(errors, dict) or not isinstance(norms, dict):
             raise RunError(f"{run.directory}/run.json has no mms_errors/mms_norms: the scheme did not "
                            "run the manufactured solution (freefem/mms.idp, IFMACRO(MMS))")
@@ -69,7 +69,7 @@ def mms_errors(scene: Scene, levels: Sequence[int], layout: Layout, jobs: int = 
             for norm in EXPECTED:
                 rows.append({"n": n, "h": 1.0 / n, "field": field, "norm": norm,
                              "error": float(errors[field][norm]), "exact_norm": float(norms[field][norm]),
-                             "newton_iterations": run.record.get("newton_iterations")})
+                             "newton_iterations": run.record.newton_iterations})
     table = pd.DataFrame(rows)
     table["relative_error"] = table["error"] / table["exact_norm"]
     return table
@@ -127,7 +127,7 @@ def gci_table(errors: pd.DataFrame, records: dict[int, dict]) -> pd.DataFrame:
         graded = errors[errors[column].notna()]
         series[column] = dict(zip(graded["n"].astype(int), graded[column].astype(float)))
     for name in GCI_OUTPUTS:
-        values = {n: record.get(name) for n, record in records.items()}
+        values = {n: getattr(record, name) for n, record in records.items()}
         if values and all(isinstance(v, (int, float)) and not isinstance(v, bool) for v in values.values()):
             series[name] = {n: float(v) for n, v in values.items()}
     rows = []
