@@ -11,6 +11,7 @@ from harness.arguments import add_case, add_scene_options, layout_of, positive_i
 from harness.engine import InlineMeshes, quiet, run_chain, runs_of
 from harness.errors import VerdictError
 from harness.layout import Layout
+from harness.record import RunRecord
 from harness.run import check_solver_files
 from harness.run_checks import failed_checks, print_checks
 from harness.scene import Scene
@@ -41,17 +42,15 @@ def solve(scene: Scene, n: int, layout: Layout, force: bool) -> int:
     return 0
 
 
-def describe_run(case: str, record: dict[str, Any], directory: Path, reused: bool) -> str:
-    get = record.get
-    state = "converged" if get("converged") else f"NOT converged ({get('reason')})"
+def describe_run(case: str, record: RunRecord, directory: Path, reused: bool) -> str:
+    r = record
+    state = "converged" if r.converged else f"NOT converged ({r.reason})"
     return "\n".join([
-        f"{case} n={get('n')}: {state} in {get('newton_iterations')} Newton iterations"
-        f" (initial guess {get('initial_guess')}){' [reused]' if reused else ''}",
-        f"  dofs {get('dofs')}, wall {fmt(get('wall_s'))} s"
-        f" (assembly {fmt(get('assembly_s'))} s, solves {fmt(get('solve_s'))} s)",
-        f"  max theta {fmt(get('max_theta'))}, phi in [{fmt(get('min_phi'))}, {fmt(get('max_phi'))}],"
-        f" max |u| {fmt(get('max_abs_u'))}",
-        f"  contact force {fmt(get('contact_force'))}, active length {fmt(get('active_length'))}",
+        f"{case} n={r.n}: {state} in {r.newton_iterations} Newton iterations"
+        f" (initial guess {r.initial_guess}){' [reused]' if reused else ''}",
+        f"  dofs {r.dofs}, wall {fmt(r.wall_s)} s (assembly {fmt(r.assembly_s)} s, solves {fmt(r.solve_s)} s)",
+        f"  max theta {fmt(r.max_theta)}, phi in [{fmt(r.min_phi)}, {fmt(r.max_phi)}], max |u| {fmt(r.max_abs_u)}",
+        f"  contact force {fmt(r.contact_force)}, active length {fmt(r.active_length)}",
         f"  results in {directory}",
     ])
 
