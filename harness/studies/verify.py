@@ -28,6 +28,7 @@ from harness.freefem import freefem_version
 from harness.gci import three_grid
 from harness.layout import REPO, Layout
 from harness.rates import slope_fit
+from harness.record import RunRecord
 from harness.run import check_solver_files
 from harness.scene import Scene, load_scene
 from harness.study import run_study
@@ -118,7 +119,7 @@ def plot_mms(errors: pd.DataFrame, rates: pd.DataFrame, target: Path) -> None:
     fig.savefig(target, format="png", dpi=120)
 
 
-def gci_table(errors: pd.DataFrame, records: dict[int, dict]) -> pd.DataFrame:
+def gci_table(errors: pd.DataFrame, records: dict[int, RunRecord]) -> pd.DataFrame:
     """Every consecutive triple of levels, for each field's error norm (`errors`: a study's
     table, n and err_<field>, blank at the reference) and each scalar output of the runs'
     run.json (`records`, by level)."""
