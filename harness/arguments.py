@@ -101,5 +101,5 @@ def prepared_scene(args: argparse.Namespace, levels: tuple[int, ...] | None = No
     if nested:
         check_nested(levels)
     if not args.ignore_memory:
-        check_memory(scene.geometry.width, scene.geometry.height, max(levels), scene.effects, scene.element)
+        check_memory(scene.geometry.width, scene.geometry.height, levels, scene.effects, scene.element)
     return scene, levels

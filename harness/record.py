@@ -22,7 +22,8 @@ from harness.errors import FieldsError
 # Keys of `checks` (freefem/checks.idp via output.idp); harness/checks.py compares them.
 CHECK_KEYS = frozenset({
     "applied_load", "clamp_reaction", "contact_force_on_body", "force_imbalance", "force_residual_bound",
-    "max_sigma_nu", "min_sigma_nu", "max_abs_sigma_tau", "S", "open_nodes", "heat_source",
+    "max_sigma_nu", "min_sigma_nu", "max_abs_sigma_tau", "S", "open_nodes", "natural_heat_flux",
+    "natural_charge_flux", "heat_source",
     "heat_out_dirichlet", "heat_imbalance", "max_heat_flux_contact", "max_heat_flux_open",
     "max_heat_flux_open_expected", "charge_source", "charge_out_dirichlet", "charge_imbalance",
     "max_charge_flux_contact", "max_charge_flux_open", "max_charge_flux_open_expected",
