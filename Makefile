@@ -13,7 +13,7 @@ convergence: $(STAMP) freefem
 # A convergence study of every scene in cases/ and one table of their unknowns, dofs,
 # times and slopes (results/scenes/summary.csv).
 scenes: $(STAMP) freefem
-	$(PY) -m harness.scenes
+	$(PY) -m harness scenes
 
 test: $(STAMP) freefem
 	$(PY) -m pytest -q
@@ -39,7 +39,7 @@ clean-runs:
 # reused when cached), into results/verification/ and results/paper/gci.csv.
 .PHONY: verify
 verify: $(STAMP) freefem
-	$(PY) -m harness.verify --levels 4,8,16,32
+	$(PY) -m harness verify --levels 4,8,16,32
 
 # The stress suite (issue 4): every case of cases/hard/ on its levels, each converged or
 # failing with a classified reason, with the physical checks, into results/stress/
@@ -47,12 +47,12 @@ verify: $(STAMP) freefem
 # (paper_iterations.csv). Exits 1 on an unexpected failure or a failed check.
 .PHONY: stress branches
 stress: $(STAMP) freefem
-	$(PY) -m harness.stress
+	$(PY) -m harness stress
 
 # Both solution branches of the paper's scene, from zero and from the pressed start, each a
 # convergence study on levels 2 ... 64, into results/branches/ (branches.csv, branches.md).
 branches: $(STAMP) freefem
-	$(PY) -m harness.branches
+	$(PY) -m harness branches
 
 # What accuracy costs (issue 5): P1, P2, P1 with a loose Newton tolerance and P1 on a mesh
 # graded towards the ends of Gamma_3, against one P2 reference (h = 1/64); the P1 chain on
@@ -64,10 +64,10 @@ branches: $(STAMP) freefem
 # (up to 20 min) for a 1-minute load below 1.2 first.
 .PHONY: cost bench
 cost: $(STAMP) freefem
-	$(PY) -m harness.cost cases/paper.toml $(COST_FLAGS)
+	$(PY) -m harness cost cases/paper.toml $(COST_FLAGS)
 
 bench: $(STAMP) freefem
-	$(PY) -m harness.bench cases/paper.toml $(BENCH_FLAGS)
+	$(PY) -m harness bench cases/paper.toml $(BENCH_FLAGS)
 
 # Past one machine (issue 15): the paper scene solved on 1 and 2 MPI ranks (time, Krylov
 # iterations, per-rank memory, agreement) and every scene's study on one local worker
@@ -76,4 +76,4 @@ bench: $(STAMP) freefem
 #   make scale SCALE_FLAGS="--mpi-levels 64,256 --study-levels 2,4,8,16,32"
 .PHONY: scale
 scale: $(STAMP) freefem
-	$(PY) -m harness.scale $(SCALE_FLAGS)
+	$(PY) -m harness scale $(SCALE_FLAGS)

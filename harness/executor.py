@@ -36,7 +36,7 @@ T = TypeVar("T")
 
 
 @dataclass(frozen=True)
-class Chain:
+class LevelChain:
     """The levels of one scene to run, warm-started when the scene says `coarser`."""
 
     scene: Scene
@@ -51,7 +51,7 @@ class Chain:
 
 @dataclass
 class ChainOutcome:
-    chain: Chain
+    chain: LevelChain
     runs: dict[int, RunResult] = field(default_factory=dict)
     error: str | None = None  # the first failure; the levels after it in a warm chain did not run
 
@@ -63,7 +63,7 @@ class Executor(Protocol):
 
     def map(self, work: Sequence[Callable[[], T]]) -> list[T]: ...
 
-    def run(self, chains: Sequence[Chain], progress: Progress) -> list[ChainOutcome]: ...
+    def run(self, chains: Sequence[LevelChain], progress: Progress) -> list[ChainOutcome]: ...
 
 
 def quiet(_: str) -> None:
@@ -81,21 +81,21 @@ class LocalExecutor:
         with ThreadPoolExecutor(max_workers=min(self.jobs, max(1, len(work)))) as pool:
             return list(pool.map(lambda piece: piece(), work))
 
-    def run(self, chains: Sequence[Chain], progress: Progress = quiet) -> list[ChainOutcome]:
+    def run(self, chains: Sequence[LevelChain], progress: Progress = quiet) -> list[ChainOutcome]:
         with ThreadPoolExecutor(max_workers=min(self.jobs, max(1, len(chains)))) as pool:
             return list(pool.map(lambda c: self._one(c, progress), chains))
 
-    def _one(self, chain: Chain, progress: Progress) -> ChainOutcome:
-        from harness.study import BackgroundMeshes, run_all  # the study imports this module
+    def _one(self, chain: LevelChain, progress: Progress) -> ChainOutcome:
+        from harness.engine import BackgroundMeshes, study_outcomes
 
         outcome = ChainOutcome(chain)
         tag = f"{chain.scene.name}: "
-        try:
-            with BackgroundMeshes(chain.scene, chain.levels, chain.layout) as meshes:
-                outcome.runs = run_all(chain.scene, meshes, chain.layout, self.jobs, chain.force,
-                                       lambda line: progress(tag + line))
-        except RunError as exc:
-            outcome.error = str(exc)
+        with BackgroundMeshes(chain.scene, chain.levels, chain.layout) as meshes:
+            levels = study_outcomes(chain.scene, meshes, chain.layout, self.jobs, chain.force,
+                                    lambda line: progress(tag + line))
+        outcome.runs = {n: o.run for n, o in levels.items() if o.run is not None}
+        failed = [o.detail for o in levels.values() if not o.ok]
+        outcome.error = failed[0] if failed else None
         return outcome
 
 
@@ -119,6 +119,11 @@ class DaskExecutor:
     def __init__(self, client: Any) -> None:
         self.client = client
 
+    def submit(self, fn: Callable[..., T], *args: Any, **kwargs: Any) -> Any:
+        """concurrent.futures' submit (engine.run_chains' seam): a Dask future, whose
+        result() raises the task's own exception."""
+        return self.client.submit(fn, *args, pure=False, **kwargs)
+
     def map(self, work: Sequence[Callable[[], T]]) -> list[T]:
         """Each piece a task (cloudpickled closures; what they name must import on a worker).
         A piece's own HarnessError comes back as raised; a worker lost for good is a RunError."""
@@ -130,7 +135,7 @@ class DaskExecutor:
         except Exception as exc:  # KilledWorker, a cancelled task: the cluster's, not the run's
             raise RunError(f"a Dask task failed: {type(exc).__name__}: {exc}") from None
 
-    def run(self, chains: Sequence[Chain], progress: Progress = quiet) -> list[ChainOutcome]:
+    def run(self, chains: Sequence[LevelChain], progress: Progress = quiet) -> list[ChainOutcome]:
         from distributed import as_completed
 
         submitted: dict[Any, tuple[int, int]] = {}  # run future -> (chain index, level)
@@ -162,7 +167,7 @@ class DaskExecutor:
                 progress(f"[{count}/{total}] {outcome.chain.scene.name} n={n} FAILED")
                 continue
             outcome.runs[n] = result
-            state = "reused" if result.reused else f"done in {result.record.get('wall_s', 0.0):.1f} s"
+            state = "reused" if result.reused else f"done in {result.record.value('wall_s'):.1f} s"
             progress(f"[{count}/{total}] {outcome.chain.scene.name} n={n} {state} (Dask)")
         return outcomes
 
@@ -217,6 +222,28 @@ def add_arguments(parser: Any) -> None:
                         help="run them on a local Dask cluster of N worker processes")
 
 
-def from_args(args: Any, jobs: int = 1) -> contextlib.AbstractContextManager[Executor]:
-    """The executor a study's parsed flags ask for (this machine without them)."""
-    return executor(getattr(args, "jobs", jobs), getattr(args, "scheduler", None), getattr(args, "cluster", None))
+@contextlib.contextmanager
+def from_args(args: Any) -> Iterator[DaskExecutor | None]:
+    """The cluster a study's --scheduler / --cluster ask for; None (this process, as
+    without them) when neither is given."""
+    scheduler, cluster = getattr(args, "scheduler", None), getattr(args, "cluster", None)
+    if scheduler and cluster:
+        raise SceneError("give --scheduler or --cluster, not both")
+    if not (scheduler or cluster):
+        yield None
+        return
+    with connect(scheduler, cluster) as dask:
+        yield dask
+
+
+def each(pool: DaskExecutor | None, fn: Callable[..., T], items: Sequence[Any]) -> list[T]:
+    """fn(item) for every item, in order: side by side on the cluster, else one after another."""
+    if pool is None:
+        return [fn(item) for item in items]
+    futures = [pool.submit(fn, item) for item in items]
+    try:
+        return [future.result() for future in futures]
+    except (RunError, SceneError, EnvironmentFault):
+        raise
+    except Exception as exc:  # KilledWorker, a cancelled task: the cluster's, not the run's
+        raise RunError(f"a Dask task failed: {type(exc).__name__}: {exc}") from None

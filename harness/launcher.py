@@ -57,8 +57,7 @@ class Ranks:
 
 
 def ranks_of(scene: Any) -> Ranks:
-    run = scene.table["run"]
-    return Ranks(int(run.get("ranks", 1)), str(run.get("launcher", "ff-mpirun -np {ranks}")))
+    return Ranks(scene.sections.run.ranks, scene.sections.run.launcher)
 
 
 def check_parallel(scene: Any) -> None:
@@ -67,7 +66,7 @@ def check_parallel(scene: Any) -> None:
         return
     if scene.element != "P1":
         raise SceneError("run.ranks > 1 needs scene.element = P1 (the partition of unity is P1)")
-    guesses = {scene.initial_guess, scene.table["scene"].get("coarsest_guess", "zero")}
+    guesses = {scene.initial_guess, scene.sections.scene.coarsest_guess}
     if "pressed" in guesses:
         raise SceneError("run.ranks > 1 cannot start from the pressed guess (its harmonic extensions are global "
                          "solves); use zero, a file or a coarser level")

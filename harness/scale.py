@@ -20,7 +20,7 @@ import pandas as pd
 
 from harness.atomic import write_atomic
 from harness.errors import RunError
-from harness.executor import Chain, LocalExecutor, executor
+from harness.executor import LevelChain, LocalExecutor, executor
 from harness.layout import Layout
 from harness.scene import load_scene
 from harness.study import error_table
@@ -45,7 +45,7 @@ def mpi_table(case: Path, levels: tuple[int, ...], ranks: Sequence[int], layout:
     runs: dict[int, Any] = {}
     for count in ranks:
         scene = load_scene(case, [f"scene.name=scale_ranks{count}", f"run.ranks={count}"])
-        outcome = LocalExecutor(1).run([Chain(scene, chain_levels, layout, force=True)])[0]
+        outcome = LocalExecutor(1).run([LevelChain(scene, chain_levels, layout, force=True)])[0]
         if outcome.error:
             raise RunError(outcome.error)
         runs[count] = outcome.runs
@@ -56,25 +56,25 @@ def mpi_table(case: Path, levels: tuple[int, ...], ranks: Sequence[int], layout:
         for count in ranks:
             run = runs[count][n]
             record = run.record
-            parallel = record.get("parallel", {})
+            parallel = record.parallel or {}
             differences = [float(np.abs(a - b).max() / max(np.abs(a).max(), 1e-300))
                            for a, b in zip(reference, read_state(run.directory / "state.txt"))]
-            per_rank = parallel.get("peak_rss_mb_per_rank", [record.get("peak_rss_mb")])
+            per_rank = parallel.get("peak_rss_mb_per_rank", [record.peak_rss_mb])
             wall = parallel.get("wall", {})
             rows.append({
-                "n": n, "ranks": count, "dofs": record.get("dofs"),
-                "newton_iterations": record.get("newton_iterations"),
-                "krylov_iterations": " ".join(str(k) for k in record.get("linear_iterations", [])[1:]),
-                "factorisations": record.get("factorisations"),
-                "wall_s": record.get("wall_s"),
-                "solve_wall_s": wall.get("total_s", record.get("wall_s")),
-                "factorisation_s": wall.get("factorisation_s", record.get("factorisation_s")),
-                "krylov_s": wall.get("krylov_s", record.get("solve_s")),
+                "n": n, "ranks": count, "dofs": record.dofs,
+                "newton_iterations": record.newton_iterations,
+                "krylov_iterations": " ".join(str(k) for k in (record.linear_iterations or [])[1:]),
+                "factorisations": record.factorisations,
+                "wall_s": record.wall_s,
+                "solve_wall_s": wall.get("total_s", record.wall_s),
+                "factorisation_s": wall.get("factorisation_s", record.factorisation_s),
+                "krylov_s": wall.get("krylov_s", record.solve_s),
                 "peak_rss_mb_max_rank": max(per_rank),
                 "peak_rss_mb_per_rank": " ".join(f"{m:.1f}" for m in per_rank),
-                "memory_vs_1_rank": max(per_rank) / max(base.record.get("peak_rss_mb", 1.0), 1e-9),
+                "memory_vs_1_rank": max(per_rank) / max(base.record.peak_rss_mb or 1.0, 1e-9),
                 "max_rel_diff_vs_1_rank": max(differences),
-                "linear_solver": record.get("linear_solver"),
+                "linear_solver": record.linear_solver,
             })
     return pd.DataFrame(rows)
 
@@ -86,7 +86,7 @@ def study_table(levels: tuple[int, ...], cluster: str, layout_root: Path) -> pd.
     rows, tables = [], {}
     for label, how in (("local, 1 worker", None), (f"dask {cluster}", cluster)):
         layout = Layout(results=layout_root / label.split(",")[0].split()[0])
-        chains = [Chain(load_scene(case), levels, layout, force=True) for case in sorted(CASES.glob("*.toml"))]
+        chains = [LevelChain(load_scene(case), levels, layout, force=True) for case in sorted(CASES.glob("*.toml"))]
         start = time.perf_counter()
         with executor(1, cluster=how) as runner:
             outcomes = runner.run(chains)
@@ -94,7 +94,7 @@ def study_table(levels: tuple[int, ...], cluster: str, layout_root: Path) -> pd.
         errors = [o.error for o in outcomes if o.error]
         if errors:
             raise RunError(errors[0])
-        tables[label] = {o.chain.scene.name: error_table(o.runs, tuple(o.runs[max(levels)].record["fields"]))
+        tables[label] = {o.chain.scene.name: error_table(o.runs, tuple(o.runs[max(levels)].record.fields or ()))
                          .drop(columns=["wall_s"]).to_csv(float_format="%.10g") for o in outcomes}
         rows.append({"executor": label, "scenes": len(chains), "levels": " ".join(map(str, levels)),
                      "runs": sum(len(o.runs) for o in outcomes), "wall_s": wall})

@@ -12,7 +12,7 @@ from pathlib import Path
 import pytest
 
 from harness.errors import SceneError
-from harness.executor import Chain, LocalExecutor, executor, parse_cluster
+from harness.executor import LevelChain, LocalExecutor, executor, parse_cluster
 from harness.layout import Layout
 from harness.scene import load_scene
 from harness.study import error_table
@@ -24,8 +24,8 @@ SCENES = ("paper", "elastic")
 LEVELS = (2, 4, 8)
 
 
-def chains(results: Path) -> list[Chain]:
-    return [Chain(load_scene(CASES / f"{name}.toml"), LEVELS, Layout(results=results)) for name in SCENES]
+def chains(results: Path) -> list[LevelChain]:
+    return [LevelChain(load_scene(CASES / f"{name}.toml"), LEVELS, Layout(results=results)) for name in SCENES]
 
 
 def tables(outcomes) -> dict[str, str]:
@@ -38,7 +38,7 @@ def tables(outcomes) -> dict[str, str]:
     for outcome in outcomes:
         assert outcome.error is None, outcome.error
         assert sorted(outcome.runs) == list(LEVELS)
-        fields = tuple(outcome.runs[LEVELS[-1]].record["fields"])
+        fields = tuple(outcome.runs[LEVELS[-1]].record.fields)
         out[outcome.chain.scene.name] = error_table(outcome.runs, fields).drop(columns=["wall_s"]).to_csv(float_format="%.10g")
     return out
 
@@ -116,11 +116,11 @@ def test_two_workers_running_the_same_levels_at_once_leave_one_complete_result(d
 
     layout = Layout(results=tmp_path)
     scene = load_scene(CASES / "paper.toml")
-    twin = [Chain(scene, (2, 4), layout, force=True), Chain(scene, (2, 4), layout, force=True)]
+    twin = [LevelChain(scene, (2, 4), layout, force=True), LevelChain(scene, (2, 4), layout, force=True)]
     outcomes = dask.run(twin)
     assert all(o.error is None and sorted(o.runs) == [2, 4] for o in outcomes)
     for n in (2, 4):
         assert corrupted(tmp_path / "paper" / f"n{n}") is None
     assert not list((tmp_path / "paper").glob(".tmp-*")) and not list((tmp_path / "paper").glob(".old-*"))
-    again = LocalExecutor(1).run([Chain(scene, (2, 4), layout)])[0]
+    again = LocalExecutor(1).run([LevelChain(scene, (2, 4), layout)])[0]
     assert again.error is None and all(run.reused for run in again.runs.values())

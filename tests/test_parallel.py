@@ -50,20 +50,20 @@ def test_two_ranks_give_the_one_rank_solution_on_the_paper_scene(tmp_path):
                           read_state(results / "two/n8/state.txt")):
         assert a.shape == b.shape
         assert np.abs(a - b).max() <= RTOL * np.abs(a).max(), name
-    parallel = two.record["parallel"]
-    assert two.record["ranks"] == 2 and parallel["ranks"] == 2
+    parallel = two.record.parallel
+    assert two.record.ranks == 2 and parallel["ranks"] == 2
     # The decomposition cuts Gamma_3 (17 nodes at n = 8): both ranks own some of it, and the
     # partition-of-unity counts add up to the one-rank active set.
     shares = parallel["contact_nodes_per_rank"]
     assert min(shares) >= 1 and sum(shares) == pytest.approx(17, abs=1e-12)
-    assert two.record["active_nodes"][-1] == one.record["active_nodes"][-1]
-    assert two.record["contact_force"] == pytest.approx(one.record["contact_force"], rel=1e-8)
+    assert two.record.active_nodes[-1] == one.record.active_nodes[-1]
+    assert two.record.contact_force == pytest.approx(one.record.contact_force, rel=1e-8)
     assert len(parallel["peak_rss_mb_per_rank"]) == 2 and min(parallel["peak_rss_mb_per_rank"]) > 0
     its = parallel["krylov_iterations"]
-    assert len(its) == two.record["newton_iterations"] + 1 and all(k > 0 for k in its[1:])
+    assert len(its) == two.record.newton_iterations + 1 and all(k > 0 for k in its[1:])
     assert set(parallel["wall"]) >= {"decompose_s", "assembly_s", "factorisation_s", "krylov_s", "total_s"}
     # The sequential pass reads the gathered state's residual: a converged state there too.
-    assert max(r[0] for r in two.record["post_pass_residuals"].values()) < 1e-12
+    assert max(r[0] for r in two.record.post_pass_residuals.values()) < 1e-12
 
 
 def test_launcher_command_puts_the_script_after_the_launcher():
