@@ -177,6 +177,7 @@ def connect(scheduler: str | None = None, cluster: str | None = None) -> Iterato
     """A DaskExecutor on the scheduler at `scheduler` (tcp://host:port) or on a local cluster
     `cluster` = "local:N" (a real scheduler with N single-threaded worker processes)."""
     try:
+        import dask
         from distributed import Client, LocalCluster
     except ImportError:
         raise EnvironmentFault("a Dask cluster needs dask and distributed (pip install -e '.[cluster]'; "
@@ -190,8 +191,12 @@ def connect(scheduler: str | None = None, cluster: str | None = None) -> Iterato
             yield DaskExecutor(client)
         return
     workers = parse_cluster(cluster or "")
-    with LocalCluster(n_workers=workers, threads_per_worker=1, processes=True,
-                      dashboard_address=":0") as local, Client(local) as client:  # any free port
+    # Non-daemonic worker processes: a study task makes its meshes in a forked process
+    # (engine.BackgroundMeshes), which a daemonic process may not start. Workers of another
+    # scheduler need the same (DASK_DISTRIBUTED__WORKER__DAEMON=False, see the README).
+    with dask.config.set({"distributed.worker.daemon": False}), \
+            LocalCluster(n_workers=workers, threads_per_worker=1, processes=True,
+                         dashboard_address=":0") as local, Client(local) as client:  # any free port
         yield DaskExecutor(client)
 
 

@@ -124,3 +124,29 @@ def test_two_workers_running_the_same_levels_at_once_leave_one_complete_result(d
     assert not list((tmp_path / "paper").glob(".tmp-*")) and not list((tmp_path / "paper").glob(".old-*"))
     again = LocalExecutor(1).run([LevelChain(scene, (2, 4), layout)])[0]
     assert again.error is None and all(run.reused for run in again.runs.values())
+
+
+def test_scenes_study_on_a_local_cluster_writes_the_local_csvs(tmp_path):
+    """`python -m harness scenes --cluster local:2` on two scenes, levels 2-8: each scene's
+    convergence.csv and the summary equal the local run's but for the measurements of the
+    machine (wall times, peak memory)."""
+    import pandas as pd
+
+    from harness.cli import main
+
+    cases = tmp_path / "cases"
+    cases.mkdir()
+    for name in SCENES:
+        (cases / f"{name}.toml").write_text((CASES / f"{name}.toml").read_text())
+    common = ["scenes", "--cases", str(cases), "--levels", "2,4,8"]
+    assert main([*common, "--results", str(tmp_path / "local")]) == 0
+    assert main([*common, "--results", str(tmp_path / "dask"), "--cluster", "local:2"]) == 0
+
+    def csv(path: Path) -> str:
+        table = pd.read_csv(path)
+        measured = [c for c in table.columns if "wall" in c or "rss" in c]
+        return table.drop(columns=measured).to_csv(float_format="%.10g")
+
+    for name in SCENES:
+        assert csv(tmp_path / "dask" / name / "convergence.csv") == csv(tmp_path / "local" / name / "convergence.csv")
+    assert csv(tmp_path / "dask" / "scenes" / "summary.csv") == csv(tmp_path / "local" / "scenes" / "summary.csv")

@@ -1,4 +1,4 @@
-"""Past one machine, measured (`make scale`, into results/scale/): one solve on 1 and on 2
+"""Past one machine, measured (`make scale`, `python -m harness scale`, into results/scale/): one solve on 1 and on 2
 MPI ranks (time, Krylov iterations, per-rank memory, agreement), and a study on this
 machine (one worker) against a local Dask cluster (time, identical tables).
 
@@ -10,7 +10,6 @@ Every run is forced (no cache reuse), so the times are the runs' own.
 from __future__ import annotations
 
 import argparse
-import sys
 import time
 from pathlib import Path
 from typing import Any, Sequence
@@ -18,6 +17,7 @@ from typing import Any, Sequence
 import numpy as np
 import pandas as pd
 
+from harness.arguments import level_list
 from harness.atomic import write_atomic
 from harness.errors import RunError
 from harness.executor import LevelChain, LocalExecutor, executor
@@ -111,17 +111,14 @@ def markdown(table: pd.DataFrame) -> str:
     return "\n".join(lines + ["| " + " | ".join(row) + " |" for row in cells]) + "\n"
 
 
-def levels_arg(text: str) -> tuple[int, ...]:
-    return tuple(int(v) for v in text.split(","))
-
-
-def main(argv: Sequence[str] | None = None) -> int:
-    parser = argparse.ArgumentParser(prog="python -m harness.scale", description=__doc__.splitlines()[0])
-    parser.add_argument("--mpi-levels", type=levels_arg, default=(16, 32), help="levels solved on 1 and 2 ranks")
-    parser.add_argument("--study-levels", type=levels_arg, default=(2, 4, 8, 16), help="levels of the study")
+def add_arguments(parser: argparse.ArgumentParser) -> None:
+    parser.add_argument("--mpi-levels", type=level_list, default=(16, 32), help="levels solved on 1 and 2 ranks")
+    parser.add_argument("--study-levels", type=level_list, default=(2, 4, 8, 16), help="levels of the study")
     parser.add_argument("--cluster", default="local:2", help="the Dask cluster of the study")
-    parser.add_argument("--results", type=Path, default=Layout().results)
-    args = parser.parse_args(argv)
+    parser.add_argument("--results", type=Path, default=Layout().results, help="results root")
+
+
+def run(args: argparse.Namespace) -> int:
     out = args.results / "scale"
     out.mkdir(parents=True, exist_ok=True)
     work = Layout(results=out / "runs")
@@ -135,9 +132,3 @@ def main(argv: Sequence[str] | None = None) -> int:
     print(markdown(study))
     print(f"wrote {out}/mpi.csv, study.csv, scale.md")
     return 0
-
-
-if __name__ == "__main__":
-    from harness.faults import guarded  # signals, exit codes, one error line
-
-    sys.exit(guarded(main))
