@@ -70,10 +70,10 @@ bench: $(STAMP) freefem
 	$(PY) -m harness bench cases/paper.toml $(BENCH_FLAGS)
 
 # Past one machine (issue 15): the paper scene solved on 1 and 2 MPI ranks (time, Krylov
-# iterations, per-rank memory, agreement) and every scene's study on one local worker
-# against a local Dask cluster of 2 workers, into results/scale/ (mpi.csv, study.csv,
+# iterations, per-rank memory, agreement) and the stress suite in this process
+# against a local Dask cluster of 2 workers, into results/scale/ (mpi.csv, stress.csv,
 # scale.md). Small sizes by default; on an idle machine:
-#   make scale SCALE_FLAGS="--mpi-levels 64,256 --study-levels 2,4,8,16,32"
+#   make scale SCALE_FLAGS="--mpi-levels 64,256 --stress-levels="
 .PHONY: scale
 scale: $(STAMP) freefem
 	$(PY) -m harness scale $(SCALE_FLAGS)

@@ -1,9 +1,10 @@
 """Past one machine, measured (`make scale`, `python -m harness scale`, into results/scale/): one solve on 1 and on 2
-MPI ranks (time, Krylov iterations, per-rank memory, agreement), and a study on this
-machine (one worker) against a local Dask cluster (time, identical tables).
+MPI ranks (time, Krylov iterations, per-rank memory, agreement), and the stress suite
+in this process against a local Dask cluster (time, identical summaries).
 
 Small sizes by default (CPU is shared while developing); the issue's sizes on an idle
-machine: `make scale SCALE_FLAGS="--mpi-levels 64,256 --study-levels 2,4,8,16,32"`.
+machine: `make scale SCALE_FLAGS="--mpi-levels 64,256 --stress-levels="` (each stress case
+on its own levels).
 Every run is forced (no cache reuse), so the times are the runs' own.
 """
 
@@ -20,12 +21,11 @@ import pandas as pd
 from harness.arguments import level_list
 from harness.atomic import write_atomic
 from harness.errors import RunError
-from harness.executor import LevelChain, LocalExecutor, executor
-from harness.layout import Layout
+from harness.executor import LevelChain, LocalExecutor
+from harness.layout import REPO, Layout
 from harness.scene import load_scene
-from harness.study import error_table
 
-CASES = Path(__file__).resolve().parents[1] / "cases"
+CASES = REPO / "cases"
 
 
 def read_state(path: Path) -> list[np.ndarray]:
@@ -79,29 +79,31 @@ def mpi_table(case: Path, levels: tuple[int, ...], ranks: Sequence[int], layout:
     return pd.DataFrame(rows)
 
 
-def study_table(levels: tuple[int, ...], cluster: str, layout_root: Path) -> pd.DataFrame:
-    """Every scene of cases/*.toml as a chain: one local worker against the Dask cluster;
-    the tables compared as the study's CSV writes them (10 digits: full precision would
-    compare round-off, ~1e-14, between a pipelined and a plain run of one level)."""
+def stress_table(levels: tuple[int, ...], cluster: str, root: Path) -> pd.DataFrame:
+    """The stress suite (cases/hard/, each case a chain, all forced) in this process as by
+    default, and on the Dask cluster: wall time, and whether the summaries are equal but for
+    the machine's measurements (times, memory) and the results path in the notes."""
+    from harness import executor as executors
+    from harness.studies.stress import case_files, run_case, summary_row
+
     rows, tables = [], {}
-    for label, how in (("local, 1 worker", None), (f"dask {cluster}", cluster)):
-        layout = Layout(results=layout_root / label.split(",")[0].split()[0])
-        chains = [LevelChain(load_scene(case), levels, layout, force=True) for case in sorted(CASES.glob("*.toml"))]
+    for label, how in (("default (this process)", None), (f"dask {cluster}", cluster)):
+        layout = Layout(results=root / label.split()[0])
+        chosen = argparse.Namespace(scheduler=None, cluster=how)
         start = time.perf_counter()
-        with executor(1, cluster=how) as runner:
-            outcomes = runner.run(chains)
+        with executors.from_args(chosen) as pool:
+            results = executors.each(pool, lambda case: run_case(case, layout, True, levels or None), case_files([]))
         wall = time.perf_counter() - start
-        errors = [o.error for o in outcomes if o.error]
-        if errors:
-            raise RunError(errors[0])
-        tables[label] = {o.chain.scene.name: error_table(o.runs, tuple(o.runs[max(levels)].record.fields or ()))
-                         .drop(columns=["wall_s"]).to_csv(float_format="%.10g") for o in outcomes}
-        rows.append({"executor": label, "scenes": len(chains), "levels": " ".join(map(str, levels)),
-                     "runs": sum(len(o.runs) for o in outcomes), "wall_s": wall})
+        table = pd.DataFrame([summary_row(result) for result in results])
+        measured = [c for c in table.columns if "wall" in c or "rss" in c]
+        tables[label] = table.drop(columns=measured).replace(str(layout.results), "<results>", regex=True) \
+            .to_csv(float_format="%.10g")
+        rows.append({"executor": label, "cases": len(results), "levels": " ".join(map(str, levels)) or "the cases'",
+                     "wall_s": wall})
     table = pd.DataFrame(rows)
     first = next(iter(tables.values()))
-    table["tables_equal_to_local"] = [t == first for t in tables.values()]
-    table["time_vs_local"] = table["wall_s"] / table["wall_s"].iloc[0]
+    table["summary_equal_to_default"] = [t == first for t in tables.values()]
+    table["time_vs_default"] = table["wall_s"] / table["wall_s"].iloc[0]
     return table
 
 
@@ -113,8 +115,9 @@ def markdown(table: pd.DataFrame) -> str:
 
 def add_arguments(parser: argparse.ArgumentParser) -> None:
     parser.add_argument("--mpi-levels", type=level_list, default=(16, 32), help="levels solved on 1 and 2 ranks")
-    parser.add_argument("--study-levels", type=level_list, default=(2, 4, 8, 16), help="levels of the study")
-    parser.add_argument("--cluster", default="local:2", help="the Dask cluster of the study")
+    parser.add_argument("--stress-levels", type=level_list, default=(2, 4),
+                        help="levels of every stress case (empty: each case's own)")
+    parser.add_argument("--cluster", default="local:2", help="the Dask cluster of the stress run")
     parser.add_argument("--results", type=Path, default=Layout().results, help="results root")
 
 
@@ -123,12 +126,12 @@ def run(args: argparse.Namespace) -> int:
     out.mkdir(parents=True, exist_ok=True)
     work = Layout(results=out / "runs")
     mpi = mpi_table(CASES / "paper.toml", args.mpi_levels, (1, 2), work)
-    study = study_table(args.study_levels, args.cluster, out / "runs" / "study")
+    study = stress_table(args.stress_levels, args.cluster, out / "runs" / "stress")
     write_atomic(out / "mpi.csv", mpi.to_csv(index=False, float_format="%.6g"))
-    write_atomic(out / "study.csv", study.to_csv(index=False, float_format="%.6g"))
+    write_atomic(out / "stress.csv", study.to_csv(index=False, float_format="%.6g"))
     write_atomic(out / "scale.md", "## One solve on 1 and 2 MPI ranks (paper scene)\n\n" + markdown(mpi)
-                 + "\n## A study on one local worker and on a Dask cluster\n\n" + markdown(study))
+                 + "\n## The stress suite in this process and on a Dask cluster\n\n" + markdown(study))
     print(markdown(mpi))
     print(markdown(study))
-    print(f"wrote {out}/mpi.csv, study.csv, scale.md")
+    print(f"wrote {out}/mpi.csv, stress.csv, scale.md")
     return 0
