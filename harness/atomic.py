@@ -3,6 +3,7 @@ study's level runs and report together or not at all."""
 
 from __future__ import annotations
 
+import errno
 import json
 import os
 import re
@@ -57,9 +58,9 @@ class StudyTransaction:
         self.backup.mkdir()
         for item in study_items(self.case_dir):
             if item.is_dir():
-                shutil.copytree(item, self.backup / item.name, copy_function=os.link)
+                shutil.copytree(item, self.backup / item.name, copy_function=link_or_copy)
             else:
-                os.link(item, self.backup / item.name)
+                link_or_copy(item, self.backup / item.name)
         return self
 
     def __exit__(self, kind: type | None, *_: object) -> None:
@@ -68,6 +69,16 @@ class StudyTransaction:
         if kind is not None:
             restore(self.backup, self.case_dir)
         shutil.rmtree(self.backup, ignore_errors=True)
+
+
+def link_or_copy(source: str | Path, target: str | Path) -> None:
+    """A hard link (no data copied); a copy where the file system has none."""
+    try:
+        os.link(source, target)
+    except OSError as exc:
+        if exc.errno not in (errno.EPERM, errno.EXDEV, errno.EOPNOTSUPP, errno.EMLINK):
+            raise
+        shutil.copy2(source, target)
 
 
 def study_items(case_dir: Path) -> list[Path]:

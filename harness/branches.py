@@ -150,4 +150,6 @@ def main(argv: Sequence[str] | None = None) -> int:
 
 
 if __name__ == "__main__":
-    sys.exit(main())
+    from harness.faults import guarded  # signals, exit codes, one error line
+
+    sys.exit(guarded(main))

@@ -21,7 +21,7 @@ from harness.layout import REPO
 # The harness modules whose code turns a scene into FreeFEM's inputs (main.edp, options,
 # macros): an edit to any of them may change a result without changing the scene.
 INPUT_WRITERS = ("harness.script", "harness.freefem", "harness.run", "harness.mms", "harness.scene",
-                 "harness.schema", "harness.contract", "harness.cache", "harness.engine")
+                 "harness.schema", "harness.contract", "harness.unknowns", "harness.cache", "harness.engine")
 CHECKSUMS = "checksums.json"
 # Written after the checksums, or by the harness about the cache itself.
 UNCHECKED = frozenset({CHECKSUMS})

@@ -86,7 +86,7 @@ def dispatch(args: argparse.Namespace) -> int:
     if args.command == "convergence":
         check_nested(levels)
     if not args.ignore_memory:
-        check_memory(scene.geometry.width, scene.geometry.height, max(levels), scene.effects, scene.element)
+        check_memory(scene.geometry.width, scene.geometry.height, levels, scene.effects, scene.element)
     if args.command == "solve":
         return solve(scene, args.n, layout, args.force)
     return convergence(scene, levels, layout, args.jobs, args.force)

@@ -7,6 +7,7 @@ import functools
 import math
 import os
 import re
+import shutil
 import signal
 import subprocess
 import tempfile
@@ -95,13 +96,24 @@ class Launched:
         CHILDREN.drop_group(self.proc.pid)
 
 
+def with_parent_death_signal(argv: list[str]) -> list[str]:
+    """Let the kernel SIGKILL FreeFEM when the thread that started it dies, even when the harness
+    itself is SIGKILLed (an OOM kill, a CI runner's hard stop), where no handler runs. util-linux's
+    setpriv sets PR_SET_PDEATHSIG and execs FreeFEM in the same process (preexec_fn would do it
+    in Python, which is unsafe with the study's threads). Without setpriv, as before."""
+    setpriv = shutil.which("setpriv")
+    if not setpriv or argv[0] != BINARY or shutil.which(BINARY) is None:
+        return argv  # a missing FreeFEM is then Popen's FileNotFoundError, named below
+    return [setpriv, "--pdeathsig", "KILL", *argv]
+
+
 def launch(argv: list[str], cwd: Path, waits_on_stdin: bool = False) -> Launched:
     """Start FreeFEM in `cwd`, its own process group; stdin is a pipe when it will wait for a
     line (Launched.resume), else empty."""
     try:
         with open(cwd / "stdout.txt", "wb") as out, open(cwd / "stderr.txt", "wb") as err:
             proc = subprocess.Popen(
-                argv, cwd=cwd, env=environment(), stdout=out, stderr=err,
+                with_parent_death_signal(argv), cwd=cwd, env=environment(), stdout=out, stderr=err,
                 stdin=subprocess.PIPE if waits_on_stdin else subprocess.DEVNULL, start_new_session=True,
             )
     except FileNotFoundError:

@@ -71,14 +71,19 @@ def available_memory() -> float:
     return found
 
 
-def check_memory(width: float, height: float, n: int, effects: tuple[str, ...], element: str = "P1",
-                 available: float | None = None) -> None:
-    """Refuse, before meshing, a level whose estimated peak does not fit in the memory left."""
-    dofs, need = memory_estimate(width, height, n, effects, element)
+def check_memory(width: float, height: float, levels: tuple[int, ...], effects: tuple[str, ...],
+                 element: str = "P1", available: float | None = None) -> None:
+    """Refuse, before meshing, a level set whose finest level does not fit in the memory left.
+    The next finer-but-one level runs alongside it (the pipelined chain starts the finest
+    while its coarser level runs; a parallel study runs two at once), so its peak counts too."""
+    finest, *rest = sorted(set(levels), reverse=True)
+    dofs, need = memory_estimate(width, height, finest, effects, element)
+    if rest:
+        need += memory_estimate(width, height, rest[0], effects, element)[1]
     have = available_memory() if available is None else available
     if need > have:
         raise EnvironmentFault(
-            f"level n={n} would need about {need / 1e9:.3g} GB ({dofs:,} dofs at {BYTES_PER_DOF / 1e3:.1f} kB each, "
+            f"level n={finest} would need about {need / 1e9:.3g} GB ({dofs:,} dofs at {BYTES_PER_DOF / 1e3:.1f} kB each, "
             f"measured) but {have / 1e9:.3g} GB is available; refusing before meshing ({OVERRIDE_FLAG} runs it anyway)")
 
 

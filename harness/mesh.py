@@ -60,6 +60,13 @@ def build_mesh(geometry: Geometry, n: int, directory: Path) -> MeshSummary:
     return replace(summary, path=target)
 
 
+def remove_partial_meshes(directory: Path, pids: list[int]) -> None:
+    """Remove the temp files of mesh writers that were killed (sibling_temp names carry the pid)."""
+    for pid in pids:
+        for partial in directory.glob(f".mesh_n*.{pid}-*"):
+            partial.unlink(missing_ok=True)
+
+
 def grid_cells(geometry: Geometry, n: int) -> dict[float, int]:
     """Number of cells along each breakpoint coordinate and the height; each must be a
     whole number of h = 1/n or the strips cannot be structured."""

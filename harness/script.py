@@ -28,6 +28,7 @@ def main_script(
     element: str = "P1",
     macros: Mapping[str, str] | None = None,
     linear_solver: str = "mumps",
+    dimension: int = 2,
 ) -> str:
     lines = ["// Written by the harness (harness/script.py); edit the scene, not this file."]
     plugin, name = LINEAR_SOLVERS[linear_solver]
@@ -36,7 +37,8 @@ def main_script(
         lines += [f'load "{plugin}"', "macro LINEARSOLVER sparsesolver //", f'string linearSolverName = "{name}";']
     lines += [f"macro {effect_macro(e)} 1 //" for e in effects]
     lines.append(f"macro ELEMENT {element} //")
-    lines += Unknowns(tuple(effects)).macros()
+    # The fields' code, and the dimension of the displacement (harness/unknowns.py).
+    lines += Unknowns(tuple(effects), dimension).macros()
     for name, body in (macros or {}).items():
         # "NAME (body)" would read as a macro with parameters; "NAME() (body)" is used bare.
         lines.append(f"macro {name}() ({body}) //")

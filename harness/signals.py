@@ -107,6 +107,9 @@ def install() -> None:
 def handled() -> Iterator[Children]:
     """Handle the signals for the duration, then put back the previous handlers; on the way out
     after a signal (or any exception), kill what is left and remove the temp dirs."""
+    if threading.current_thread() is not threading.main_thread():
+        yield CHILDREN  # only the main thread may set handlers; its caller handles the signals
+        return
     previous = {signum: signal.getsignal(signum) for signum in HANDLED}
     install()
     try:

@@ -98,10 +98,10 @@ TOLERANCES: dict[str, tuple[float, str]] = {
                         "equals what the contact term of the residual puts there (checks.idp: 2-point "
                         "Gauss, a Gauss point of a segment to a closed neighbour can be closed; 0 when "
                         "its support is open; theta-Dirichlet nodes skipped in both); relative to the "
-                        "largest nodal flux on Gamma_3 (floor: natural_fluxes); measured <= 2.3e-12"),
+                        "largest nodal flux on Gamma_3 (floor: FLOOR); measured <= 2.3e-12"),
     "heat": (1e-8, "heat in through Gamma_3 + sources = heat out through the Dirichlet boundary is "
                    "exact for a converged residual (the constant is a test function); relative to "
-                   "the largest of the three (floor: natural_fluxes), with the force balance's "
+                   "the largest of the three (floor: FLOOR), with the force balance's "
                    "margin; measured <= 5.6e-14"),
     "charge": (1e-8, "charge balance, as the heat balance; measured <= 1.4e-11"),
 }
@@ -194,24 +194,14 @@ def contact_length(scene: Scene) -> float:
     return sum(seg.length for seg in scene.geometry.bottom + scene.geometry.top if seg.role == "contact")
 
 
-def natural_fluxes(scene: Scene) -> dict[str, float]:
-    """The largest flux per unit length each conductance could carry (k_r times the
-    foundation's drive, W/m^2 and C/m^2): the floor of the flux checks' scales, where no
-    flux passes at all (an open contact) and a relative test would compare round-off with
-    round-off. FLOOR of it is 1e8 times round-off (~1e-20 C/m and W/m here) and over 500
-    times below the smallest flow that does pass in the suite (charge 4.7e-7 C/m against a
-    floor of 8.8e-10 on the paper's scene)."""
-    table, on = scene.table, set(scene.effects)
-    out = {"heat": 0.0, "charge": 0.0}
-    if "thermal_contact" in on:
-        out["heat"] = table["thermal_contact"]["k_c"] * abs(table["thermal_contact"]["theta_f"])
-    if "electric_contact" in on:
-        e = table["electric_contact"]
-        out["charge"] = e["k_e"] * min(abs(e["phi_f"]), e["L"])
-    return out
-
-
-FLOOR = 1e-10  # of natural_fluxes (times |Gamma_3| for a total): "no flux at all"
+# Of the largest flux per unit length each conductance could carry (checks.idp's
+# natural_*_flux, k_r times the foundation's drive, W/m^2 and C/m^2; times |Gamma_3| for a
+# total): the floor of the flux checks' scales, where no flux passes at all (an open
+# contact) and a relative test would compare round-off with round-off. FLOOR of it is 1e8
+# times round-off (~1e-20 C/m and W/m here) and over 500 times below the smallest flow
+# that does pass in the suite (charge 4.7e-7 C/m against a floor of 8.8e-10 on the
+# paper's scene).
+FLOOR = 1e-10
 # W/m or C/m: a floor of the balance scale, 23 decades below the smallest flow that passes
 # in the suite (4.7e-7 C/m), so a 0/0 is not a failure.
 NOTHING_FLOWS = 1e-30
@@ -241,7 +231,7 @@ def physical_checks(record: dict[str, Any], scene: Scene) -> dict[str, Any]:
         # nodal reading's error follows the load, not S: S = 0, or S = 8.5 under 1e8 N/m^2)
         "sigma_tau_excess": (tau - S) / (S + 1e-4 * sigma_scale) if math.isfinite(S) else -1.0,
     }
-    natural = natural_fluxes(scene)
+    natural = {name: c.get(f"natural_{name}_flux", 0.0) for name in ("heat", "charge")}
     flows = {"heat": (record.get("heat_in_contact", 0.0), c.get("heat_source", 0.0), c.get("heat_out_dirichlet", 0.0)),
              "charge": (record.get("charge_in_contact", 0.0), c.get("charge_source", 0.0), c.get("charge_out_dirichlet", 0.0))}
     for name, (into, source, leaving) in flows.items():
@@ -473,4 +463,6 @@ def main(argv: Sequence[str] | None = None) -> int:
 
 
 if __name__ == "__main__":
-    sys.exit(main())
+    from harness.faults import guarded  # signals, exit codes, one error line
+
+    sys.exit(guarded(main))

@@ -18,7 +18,7 @@ from harness.errors import RunError
 from harness.fields import read_fields
 from harness.freefem import freefem_version
 from harness.layout import Layout
-from harness.mesh import build_mesh
+from harness.mesh import build_mesh, remove_partial_meshes
 from harness.norms import error_norms
 from harness.rates import fitted_slope, pairwise_orders
 from harness.run import LevelRun, RunResult, WarmStart, check_solver_files, run_level
@@ -89,7 +89,7 @@ class BackgroundMeshes(Mapping[int, Path]):
     def __init__(self, scene: Scene, levels: tuple[int, ...], layout: Layout) -> None:
         self._pool = ProcessPoolExecutor(max_workers=1, mp_context=multiprocessing.get_context("fork"),
                                          initializer=signals.in_forked_child)
-        directory = layout.meshes_dir(scene.name)
+        directory = self._directory = layout.meshes_dir(scene.name)
         self._futures = {n: self._pool.submit(build_mesh, scene.geometry, n, directory) for n in sorted(levels)}
         self._workers = signals.track_pool(self._pool)
 
@@ -109,6 +109,8 @@ class BackgroundMeshes(Mapping[int, Path]):
         if kind is not None:  # a failure or a signal: do not wait for meshes nobody will use
             signals.end_pool(self._workers)
         self._pool.shutdown(wait=True, cancel_futures=True)
+        if kind is not None:
+            remove_partial_meshes(self._directory, self._workers)
         signals.untrack_pool(self._workers)
 
 

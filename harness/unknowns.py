@@ -104,6 +104,9 @@ class Unknowns:
         blocks = {(r, c) for r, c in blocks if r in present and c in present}
         space = {f.low: f.space for f in FIELDS}
         bulk = " ".join(f"matrix K{r}{c} = vK{r}{c}({space[c]}, {space[r]});" for r, c in sorted(blocks))
+        # A staggered theta is a load on the Newton fields through their blocks K_rt.
+        staggered = " ".join(f"real[int] k{r}t = K{r}t * th[]; b{r} -= k{r}t;"
+                             for r, c in sorted(blocks) if c == "t" and r in newton)
         bulk_matrix = matrix("K{r}{c}", blocks)
         # Contact: the diagonal block of each Newton field (a zero block of its shape when its
         # contact term is off) and the block of its dependence on u.
@@ -134,6 +137,7 @@ class Unknowns:
             f"macro newtonVector(U, P, T) [{vector}] //",
             f"macro bulkBlocks() {bulk} //",
             f"macro bulkMatrix() {bulk_matrix} //",
+            f"macro staggeredThetaLoads() {staggered} //" if self.staggered else "",
             f"macro contactBlocks() {' '.join(tangent)} //",
             f"macro contactMatrix() {matrix('T{r}{c}', blocks)} //",
             *residual,

@@ -108,6 +108,29 @@ def test_a_signal_ends_the_process_tree_removes_temp_dirs_and_keeps_completed_le
     assert cache.corrupted(done) is None and (done / "solution.vtu").is_file()
 
 
+def test_freefem_and_the_mesh_worker_die_with_a_sigkilled_harness(tmp_path):
+    """No handler runs on SIGKILL: the kernel's parent-death signal ends the FreeFEM runs
+    (setpriv --pdeathsig) and the forked mesh worker (prctl)."""
+    if shutil.which("setpriv") is None:
+        pytest.skip("util-linux setpriv is not installed")
+    proc = harness_process(tmp_path, "convergence", str(STUB_CASE), "--levels", "2,4,8",
+                           "--set", "scene.material=HangFine", "--set", "scene.initial_guess=coarser")
+    case = tmp_path / "results" / "paper"
+    wait_for(lambda: any(case.glob(".tmp-n4-*/child.pid")))
+    tree = descendants(proc.pid)
+    freefem = [pid for pid in tree if "FreeFem++" in Path(f"/proc/{pid}/cmdline").read_text(errors="replace")]
+    workers = [pid for pid in tree if "python" in Path(f"/proc/{pid}/cmdline").read_text(errors="replace")]
+    assert freefem and workers
+    proc.kill()
+    proc.communicate(timeout=30)
+    try:
+        wait_for(lambda: not any(alive(pid) for pid in freefem + workers), timeout=10)
+    finally:  # the stub's `sleep 60`, a child of FreeFEM, is not FreeFEM's to end
+        for pid in freefem:
+            with contextlib.suppress(ProcessLookupError):
+                os.killpg(pid, signal.SIGKILL)
+
+
 def test_ctrl_c_to_the_whole_group_is_one_line(tmp_path):
     """Defect 3: SIGINT to the process group (the terminal's Ctrl-C) reaches the mesh worker
     and every run; no traceback from any of them."""
@@ -121,14 +144,23 @@ def test_ctrl_c_to_the_whole_group_is_one_line(tmp_path):
     one_error(err.decode().strip().splitlines(), "interrupted")
 
 
+def catches(pid: int, signum: int) -> bool:
+    for line in Path(f"/proc/{pid}/status").read_text().splitlines():
+        if line.startswith("SigCgt:"):
+            return bool(int(line.split()[1], 16) >> (signum - 1) & 1)
+    return False
+
+
 def test_ctrl_c_during_start_up_is_one_line(tmp_path):
     """Defect 3: SIGINT while the harness is still importing its modules."""
     proc = harness_process(tmp_path, "convergence", str(STUB_CASE), "--set", "scene.name=r")
-    time.sleep(0.3)
+    # The harness's handlers are in (SIGTERM caught: Python alone leaves it default), the
+    # heavy imports (pandas, gmsh, matplotlib: over a second) not yet done.
+    wait_for(lambda: catches(proc.pid, signal.SIGTERM), timeout=10)
     proc.send_signal(signal.SIGINT)
     _, err = proc.communicate(timeout=30)
     assert proc.returncode == 130
-    one_error(err.decode().strip().splitlines(), "interrupted")
+    one_error(err.decode().strip().splitlines(), "interrupted by SIGINT during start-up")
 
 
 # ---- 2: environment faults exit 4 with one line -------------------------------------------
@@ -179,6 +211,15 @@ def test_a_full_disk_while_meshing_on_a_tiny_tmpfs(capsys, tmp_path):
         code, err, _ = run(capsys, disk / "results", "convergence", str(STUB_CASE), "--levels", "2,4,8,16,32")
         assert code == 4
         one_error(err, "no space left on the device")
+        assert not list((disk / "results" / "paper").glob(".tmp-*"))
+
+
+def test_a_full_disk_while_freefem_writes_its_outputs(capsys, tmp_path):
+    """A 64 kB tmpfs holds n = 2's run and the meshes, not n = 4's outputs (real FreeFEM)."""
+    with mounted_tmpfs(tmp_path / "full", "size=64k") as disk:
+        code, err, _ = run(capsys, disk / "results", "solve", str(PAPER), "--n", "8", freefem=REPO / "freefem")
+        assert code == 4
+        one_error(err, "no space left on the device for the outputs of paper n=")
         assert not list((disk / "results" / "paper").glob(".tmp-*"))
 
 
@@ -239,7 +280,7 @@ def test_a_change_to_the_generated_script_is_a_cache_miss(capsys, tmp_path, monk
 
 
 def test_the_key_covers_the_input_writing_code(tmp_path):
-    assert {"harness.script", "harness.run", "harness.freefem"} <= set(cache.code_digests())
+    assert {"harness.script", "harness.unknowns", "harness.run", "harness.freefem"} <= set(cache.code_digests())
 
 
 def test_adding_a_material_invalidates_only_the_runs_that_use_it(tmp_path):
@@ -328,6 +369,15 @@ def test_a_level_that_cannot_fit_is_refused_before_meshing(capsys, tmp_path):
     assert not (tmp_path / "paper").exists()
 
 
+def test_the_memory_guard_counts_the_level_running_alongside():
+    effects = ("piezoelectric", "thermal")
+    one = guards.memory_estimate(4.0, 1.0, 256, effects)[1]
+    below = guards.memory_estimate(4.0, 1.0, 128, effects)[1]
+    guards.check_memory(4.0, 1.0, (128, 256), effects, available=one + below)
+    with pytest.raises(guards.EnvironmentFault, match="n=256 would need about 8.83 GB"):
+        guards.check_memory(4.0, 1.0, (64, 128, 256), effects, available=one + below - 1)
+
+
 def test_non_nested_levels_are_refused(capsys, tmp_path):
     """Defect 10: levels 2, 3, 4 are not nested."""
     code, err, _ = run(capsys, tmp_path, "convergence", str(STUB_CASE), "--levels", "2,3,4")
@@ -364,6 +414,17 @@ def test_solve_prints_the_checks_and_a_failed_check_exits_1(capsys, tmp_path, mo
     code, err, out = run(capsys, tmp_path, "solve", str(PAPER), "--n", "2", freefem=REPO / "freefem")
     assert code == 1 and "checks n=2: FAIL charge" in out
     one_error(err, "physical checks failed at n = 2", "charge")
+
+
+def test_a_check_the_solver_does_not_report_is_missing_not_failed(tmp_path):
+    from harness.run import RunResult
+    from harness.run_checks import check_run
+    from harness.scene import load_scene
+
+    record = {"n": 2, "checks": {"force_imbalance": 0.0, "force_residual_bound": 1.0}}
+    checked = check_run(load_scene(PAPER), RunResult(2, tmp_path, record, reused=True))
+    assert checked.passed and checked.line == ("checks n=2: pass (force); not reported: sigma_nu, sigma_tau, "
+                                               "open_flux, heat, charge")
 
 
 # ---- 10: smaller ones ----------------------------------------------------------------------

@@ -138,14 +138,16 @@ def test_each_case_is_hard_the_way_its_header_says(suite):
 
 def test_paper_scene_iterations_do_not_grow_with_refinement(tmp_path):
     """Each level from the coarser one: a few iterations per level, not growing (measured
-    6, 4, 4, 4 at n = 2 ... 16 and 4, 3 at 32, 64); from zero they grow (6, 10, 17, 19)."""
+    4, 4, 4, 3 at n = 2 ... 16 and 3, 3 at 32, 64). From zero, issue 14 asks for at most 6
+    at every level: measured 4 at every n = 2 ... 64 with the natural monotonicity test
+    (line_search.idp); with backtracking on ||R|| it was 5, 9, 16, 18, 19, 19."""
     table = stress.paper_iterations(Layout(results=tmp_path), (2, 4, 8, 16))
     chain = table[table["start"] == "coarser"].set_index("n")["newton_iterations"]
     zero = table[table["start"] == "zero"].set_index("n")["newton_iterations"]
     assert (table["status"] == "converged").all()
     assert chain.loc[[4, 8, 16]].max() <= 5
     assert chain[16] <= chain[4]
-    assert zero[16] > zero[4] > chain[4]  # the warm start is what keeps the count flat
+    assert zero.max() <= 6
 
 
 # ---- the classification and the checks, without FreeFEM ----------------------------------
@@ -167,7 +169,9 @@ def paper_record(**checks) -> dict:
             "min_sigma_nu": -3e-6, "max_abs_sigma_tau": 0.02, "S": 8.5, "heat_source": 0.0,
             "heat_out_dirichlet": 1e-4, "max_heat_flux_contact": 1e-4, "max_heat_flux_open": 0.0,
             "charge_source": 0.0, "charge_out_dirichlet": -5e-7, "max_charge_flux_contact": 3e-7,
-            "max_charge_flux_open": 0.0}
+            "max_charge_flux_open": 0.0,
+            # the paper's conductance laws at full contact, k_c |theta_f| and k_e |phi_f| (checks.idp)
+            "natural_heat_flux": 373.0, "natural_charge_flux": 4.4}
     return {"heat_in_contact": 1e-4, "charge_in_contact": -5e-7, "checks": {**base, **checks}}
 
 
