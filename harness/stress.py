@@ -55,27 +55,9 @@ STATUSES = ("converged", "diverged", "max_iterations", "nan", "freefem_error", "
 # fail with, why). They stay in the suite and are reported, never skipped; the tests assert
 # that they still fail this way, so a solver change that fixes one is noticed.
 KNOWN_FAILURES: dict[str, tuple[str, str]] = {
-    "no_piezo": (
-        "max_iterations",
-        "from zero at n = 2 the active set settles at 2 of 5 nodes after 2 iterations, but the "
-        "consistent-tangent step stays O(1) (relative increment 1.3) and raises ||R||: most steps "
-        "are cut to 1/64-1/32 (1/64 taken even when ||R|| grows); ||R_u|| creeps from 5e-7 to 2e-6. "
-        "The hot pressed branch is the solution found (no_piezo_pressed, 3 iterations a level)",
-    ),
-    "phi_plus": (
-        "max_iterations",
-        "from zero at n = 2 a period-3 cycle: from the open state no damped step lowers ||R||, "
-        "the forced 1/64 step closes all 5 nodes (||R_phi|| 1e-3 -> 5.5e2), the next full step "
-        "opens them all again. The pressed branch exists (phi_plus_pressed converges)",
-    ),
-    "friction_large_shear": (
-        "max_iterations",
-        "from zero at n = 2 a period-2 cycle from iteration 27 on with the consistent tangent and "
-        "no nodal state change (1 active node): steps 1/64 and 1 alternate, ||R_phi|| 4e5 / 38 "
-        "(presumably a kink crossed at a Gauss point between nodes, which the nodal active set "
-        "does not see). "
-        "The pressed start converges (friction_large_shear_pressed)",
-    ),
+    # Empty since the exact tangent and the restart from the pressed state (freefem/newton.idp):
+    # no_piezo, phi_plus and friction_large_shear, which cycled from zero, now converge on
+    # the pressed branch (docs/model.md section 6).
 }
 
 # Tolerances of the physical checks, each relative to the named scale, and why.
