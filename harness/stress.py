@@ -133,9 +133,11 @@ def classify(exc: RunError, failed: Path) -> tuple[str, dict[str, Any] | None]:
     return "freefem_error", record
 
 
-def run_case(case: Path, layout: Layout, force: bool = False, levels: Sequence[int] | None = None) -> CaseResult:
-    """The case's levels (or `levels`), coarsest first; a chain stops at its first failure."""
-    scene = load_scene(case)
+def run_case(case: Path, layout: Layout, force: bool = False, levels: Sequence[int] | None = None,
+             scene: Scene | None = None) -> CaseResult:
+    """The case's levels (or `levels`), coarsest first; a chain stops at its first failure.
+    `scene`: the case's scene with overrides (default: the case file as it is)."""
+    scene = scene or load_scene(case)
     check_solver_files(scene, layout)
     result = CaseResult(case.stem, scene)
     warm: WarmStart | None = None
