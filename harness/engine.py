@@ -26,7 +26,7 @@ from typing import Callable, Iterator, Mapping, Sequence
 
 from harness import freefem, signals
 from harness.contract import Failure
-from harness.errors import RunError
+from harness.errors import EnvironmentFault, HarnessError, MeshError, RunError
 from harness.layout import Layout
 from harness.mesh import build_graded_mesh, build_mesh, remove_partial_meshes
 from harness.record import RunRecord
@@ -208,11 +208,19 @@ def run_chain(
             current = current or LevelRun(scene, meshes[n], n, layout, force)
             try:
                 cached = current.start(warm if chained else None)
+                ahead: HarnessError | None = None
                 if count < len(levels):
-                    following = LevelRun(scene, meshes[levels[count]], levels[count], layout, force)
-                    if pipelined and chained and cached is None:
-                        following.launch_early(meshes[n])
+                    try:
+                        following = LevelRun(scene, meshes[levels[count]], levels[count], layout, force)
+                        if pipelined and chained and cached is None:
+                            following.launch_early(meshes[n])
+                    except (MeshError, EnvironmentFault) as exc:
+                        # The next level's mesh or launch failed while this level runs: this
+                        # level's own failure, if any, comes first (failures in level order).
+                        ahead = exc
                 run = cached or current.wait()
+                if ahead is not None:
+                    raise ahead
             except RunError as exc:
                 outcomes[n] = LevelOutcome.of_failure(n, exc, layout.failed_dir(scene.name, n),
                                                       time.perf_counter() - began)
