@@ -59,8 +59,9 @@ branches: $(STAMP) freefem
 # to h = 1/256 for time and memory against dofs; into results/cost/ (cost.csv, fits.csv,
 # frontier.md/.csv, scaling.csv, PNGs; ~5 min).
 # Cached runs keep their old timings: COST_FLAGS=--force reruns every level.
-# `make bench` repeats the timings that matter (finest level alone, the sweep, the CLI)
-# five times, medians and min-max, into results/bench/ (bench.csv, bench.md); it waits
+# `make bench` repeats the timings that matter (finest level alone, the sweep, the CLI, and
+# `python -m harness solve CASE --n FINEST --force` as a whole process beside its own FreeFEM
+# run: `process`) five times, medians and min-max, into results/bench/ (bench.csv, bench.md); it waits
 # (up to 20 min) for a 1-minute load below 1.2 first.
 .PHONY: cost bench
 cost: $(STAMP) freefem

@@ -18,6 +18,7 @@ import multiprocessing
 import statistics
 import sys
 import tempfile
+import threading
 import time
 from concurrent.futures import Executor, ProcessPoolExecutor, ThreadPoolExecutor, as_completed
 from dataclasses import dataclass
@@ -26,7 +27,7 @@ from typing import Callable, Iterator, Mapping, Sequence
 
 from harness import freefem, signals
 from harness.contract import Failure
-from harness.errors import RunError
+from harness.errors import EnvironmentFault, HarnessError, MeshError, RunError
 from harness.layout import Layout
 from harness.mesh import build_graded_mesh, build_mesh, remove_partial_meshes
 from harness.record import RunRecord
@@ -118,7 +119,10 @@ class BackgroundMeshes(Mapping[int, Path]):
 class InlineMeshes(Mapping[int, Path]):
     """Meshes made in this process when first looked up (a chain that may stop early does not
     mesh the levels it never reaches), graded with `grading` (mesh.build_graded_mesh); the
-    seconds each took (gmsh and the checks) in `seconds`."""
+    seconds each took (gmsh and the checks) in `seconds`. gmsh is one library state per process
+    and not thread-safe: meshes of chains run side by side in threads are made one at a time."""
+
+    _gmsh = threading.Lock()  # per process, as gmsh's own state is
 
     def __init__(self, scene: Scene, levels: Sequence[int], layout: Layout, grading: float = 1.0) -> None:
         self._scene, self._levels, self._layout, self._grading = scene, sorted(set(levels)), layout, grading
@@ -129,10 +133,11 @@ class InlineMeshes(Mapping[int, Path]):
         if n not in self._levels:
             raise KeyError(n)
         if n not in self._made:
-            start = time.perf_counter()
-            directory = self._layout.meshes_dir(self._scene.name)
-            self._made[n] = build_graded_mesh(self._scene.geometry, n, directory, self._grading)
-            self.seconds[n] = time.perf_counter() - start
+            with self._gmsh:
+                start = time.perf_counter()
+                directory = self._layout.meshes_dir(self._scene.name)
+                self._made[n] = build_graded_mesh(self._scene.geometry, n, directory, self._grading)
+                self.seconds[n] = time.perf_counter() - start
         return self._made[n]
 
     def __iter__(self) -> Iterator[int]:
@@ -208,11 +213,19 @@ def run_chain(
             current = current or LevelRun(scene, meshes[n], n, layout, force)
             try:
                 cached = current.start(warm if chained else None)
+                ahead: HarnessError | None = None
                 if count < len(levels):
-                    following = LevelRun(scene, meshes[levels[count]], levels[count], layout, force)
-                    if pipelined and chained and cached is None:
-                        following.launch_early(meshes[n])
+                    try:
+                        following = LevelRun(scene, meshes[levels[count]], levels[count], layout, force)
+                        if pipelined and chained and cached is None:
+                            following.launch_early(meshes[n])
+                    except (MeshError, EnvironmentFault) as exc:
+                        # The next level's mesh or launch failed while this level runs: this
+                        # level's own failure, if any, comes first (failures in level order).
+                        ahead = exc
                 run = cached or current.wait()
+                if ahead is not None:
+                    raise ahead
             except RunError as exc:
                 outcomes[n] = LevelOutcome.of_failure(n, exc, layout.failed_dir(scene.name, n),
                                                       time.perf_counter() - began)
