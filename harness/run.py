@@ -112,6 +112,9 @@ class LevelRun:
         under way (wait() for it)."""
         guess, start = start_of(self.scene, warm)
         described = {**self.scene.run_inputs(), "start": guess}
+        ranks = launcher.ranks_of(self.scene)
+        if ranks.parallel:  # a run on other ranks is another measurement (same solution to round-off)
+            described["ranks"] = ranks.count
         if start and start.key:
             described["start_key"] = start.key
         elif start:

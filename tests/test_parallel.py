@@ -116,3 +116,14 @@ def test_a_missing_launcher_is_one_error_line(tmp_path, capsys):
                  "--set", "run.ranks=2", "--set", "run.launcher=no-such-mpirun -np {ranks}"])
     err = capsys.readouterr().err.strip().splitlines()
     assert code == 4 and len(err) == 1 and err[0].startswith("error: no-such-mpirun not found"), err
+
+
+@pytest.mark.skipif(bool(mpi_missing()), reason=mpi_missing() or "-")
+def test_a_run_on_other_ranks_is_not_reused(tmp_path):
+    results = tmp_path / "results"
+    two = solve(CASES / "paper.toml", 2, results, "run.ranks=2")
+    three = solve(CASES / "paper.toml", 2, results, "run.ranks=3")
+    again = solve(CASES / "paper.toml", 2, results, "run.ranks=3")
+    assert (two.record.ranks, three.record.ranks, again.record.ranks) == (2, 3, 3)
+    assert len(three.record.parallel["peak_rss_mb_per_rank"]) == 3
+    assert again.record.wall_s == three.record.wall_s  # reused: the same run.json
