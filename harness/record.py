@@ -47,6 +47,7 @@ class RunRecord:
     converged: bool | None = None
     reason: str | None = None
     newton_iterations: int | None = None
+    restarted_at: int | None = None  # Newton restarted from the pressed state after it (0: never)
     residuals: dict[str, list[float]] | None = None
     increments: dict[str, list[float]] | None = None
     error_estimates: dict[str, list[float]] | None = None

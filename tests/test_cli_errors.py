@@ -96,7 +96,7 @@ def test_solve_passes_the_scene_to_freefem_and_summarises_run_json(capsys, stub_
 @pytest.mark.parametrize(
     "material, words",
     [
-        ("Diverge", ["Newton diverged: no step passed the line search in 5 iterations", "stub reason", "n4.failed/stdout.txt"]),
+        ("Diverge", ["Newton diverged: no progress (a cycle, or 5 steps without passing the line search), also from the pressed restart", "stub reason", "n4.failed/stdout.txt"]),
         ("Broken", ["FreeFEM compile error", "Broken.idp"]),
         ("Silent", ["FreeFEM wrote no readable run.json"]),
         ("Unconverged", ["not converged: stub reason"]),

@@ -95,9 +95,11 @@ def level_of(outcome: LevelOutcome) -> Level:
     return Level(outcome.n, status, outcome.detail, outcome.record, outcome.directory, outcome.wall_s)
 
 
-def run_case(case: Path, layout: Layout, force: bool = False, levels: Sequence[int] | None = None) -> CaseResult:
-    """The case's levels (or `levels`), coarsest first; a chain stops at its first failure."""
-    scene = load_scene(case)
+def run_case(case: Path, layout: Layout, force: bool = False, levels: Sequence[int] | None = None,
+             scene: Scene | None = None) -> CaseResult:
+    """The case's levels (or `levels`), coarsest first; a chain stops at its first failure.
+    `scene`: the case's scene with overrides (default: the case file as it is)."""
+    scene = scene or load_scene(case)
     check_solver_files(scene, layout)
     meshes = InlineMeshes(scene, levels or scene.levels, layout)
     outcomes = run_chain(scene, meshes, layout, force, quiet, pipelined=False)
