@@ -150,3 +150,21 @@ def test_scenes_study_on_a_local_cluster_writes_the_local_csvs(tmp_path):
     for name in SCENES:
         assert csv(tmp_path / "dask" / name / "convergence.csv") == csv(tmp_path / "local" / name / "convergence.csv")
     assert csv(tmp_path / "dask" / "scenes" / "summary.csv") == csv(tmp_path / "local" / "scenes" / "summary.csv")
+
+
+def test_stress_on_an_existing_scheduler_by_address(tmp_path, capsys):
+    """--scheduler tcp://...: a scheduler someone else started (here a local one)."""
+    import dask
+    from distributed import LocalCluster
+
+    from harness.cli import main
+
+    argv = ["stress", "--cases", "coarsest,gap_open", "--levels", "2", "--paper-levels", "", "--force"]
+    with dask.config.set({"distributed.worker.daemon": False}), \
+            LocalCluster(n_workers=2, threads_per_worker=1, dashboard_address=":0") as cluster:
+        assert main([*argv, "--results", str(tmp_path / "dask"), "--scheduler", cluster.scheduler_address]) == 0
+    dask_out = capsys.readouterr().out
+    assert main([*argv, "--results", str(tmp_path / "local")]) == 0
+    local_out = capsys.readouterr().out
+    lines = lambda out: sorted(line.split("(")[0].strip() for line in out.splitlines() if " n=" in line)  # noqa: E731
+    assert lines(dask_out) == lines(local_out) and len(lines(local_out)) == 2
