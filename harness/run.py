@@ -219,7 +219,7 @@ def solver_inputs(
     """main.edp's text and FreeFEM's options. A start state "-" is read from stdin (a pipelined run)."""
     macros = {**scene_macros(scene, layout), **scene.reference_macros()}
     text = main_script(scene.material, scene.effects, layout, element=scene.element, macros=macros,
-                       linear_solver=scene.linear_solver)
+                       linear_solver=scene.linear_solver, dimension=scene.dimension)
     options = ["-mesh", str(mesh.resolve()), "-out", str(out.resolve() if out else "-"), "-n", str(n)]
     options += freefem.scene_options(scene.solver_parameters(), guess)
     if start:
