@@ -149,7 +149,8 @@ def grid_index(points: np.ndarray) -> tuple[np.ndarray, float]:
     xs = np.unique(np.round(points[:, 0], 12))
     spacing = float(np.min(np.diff(xs)))
     ijk = np.rint(points / spacing).astype(np.int64)
-    if np.max(np.abs(ijk * spacing - points)) > 1e-9 * spacing:
+    # (solution.vtu stores coordinates in single precision: snap within 1e-3 h)
+    if np.max(np.abs(ijk * spacing - points)) > 1e-3 * spacing:
         raise MeshError("grid_index: the points are not on a grid of spacing h")
     grid = np.full(tuple(ijk.max(axis=0) + 1), -1, dtype=np.int64)
     grid[ijk[:, 0], ijk[:, 1], ijk[:, 2]] = np.arange(len(points))

@@ -147,7 +147,8 @@ def apply_override(raw: dict, item: str) -> None:
     section, _, key = dotted.partition(".")
     if not sep:
         raise SceneError(f"--set {item!r}: expected section.key=value")
-    if key not in SCHEMA.get(section, {}):
+    keys = geometry_keys(raw.get("geometry", {})) if section == "geometry" else SCHEMA.get(section, {})
+    if key not in keys:
         raise SceneError(f"--set {item!r}: no such key {dotted!r} in the case-file schema")
     raw.setdefault(section, {})[key] = parse_value(text)
 
