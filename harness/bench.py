@@ -80,7 +80,7 @@ def bench_finest(case: Path, overrides: Sequence[str], levels: Sequence[int], la
     finest = max(levels)
     below = {n: p for n, p in meshes.items() if n < finest}
     runs = run_chain(scene, below, layout, False, lambda s: None) if below else {}
-    warm = WarmStart(meshes[max(below)], runs[max(below)].directory / "state.txt") if below else None
+    warm = runs[max(below)].warm_start(meshes[max(below)]) if below else None
     return repeat_level(scene, meshes[finest], finest, layout, warm, repeats, "finest", say)
 
 

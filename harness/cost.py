@@ -414,7 +414,7 @@ def scaling_rows(
     """The P1 chain continued to finer levels, for time and memory against dofs only. A
     level that fails (out of memory, say) ends the chain with a row saying why, not the study."""
     rows = []
-    warm = WarmStart(meshes[max(runs)], runs[max(runs)].directory / "state.txt")
+    warm = runs[max(runs)].warm_start(meshes[max(runs)])
     for n in sorted(levels):
         start = time.perf_counter()
         mesh = build_mesh(scene.geometry, n, layout.meshes_dir(scene.name)).path
@@ -428,7 +428,7 @@ def scaling_rows(
             break
         progress(f"scaling n={n} done in {run.record.get('wall_s', math.nan):.1f} s")
         rows.append(row_of(scene.name, "P1", "P1", run, mesh_s, startup, finer_than_reference=True))
-        warm = WarmStart(mesh, run.directory / "state.txt")
+        warm = run.warm_start(mesh)
     return rows
 
 

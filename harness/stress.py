@@ -169,7 +169,7 @@ def run_case(case: Path, layout: Layout, force: bool = False, levels: Sequence[i
             break
         result.levels.append(LevelRun(n, "converged", "", run.record, run.directory, run.record.get("wall_s", math.nan)))
         if scene.initial_guess == "coarser":
-            warm = WarmStart(mesh, run.directory / "state.txt")
+            warm = run.warm_start(mesh)
     return result
 
 
@@ -362,7 +362,7 @@ def paper_iterations(layout: Layout, levels: Sequence[int], force: bool = False)
                 rows.append({"start": start, "n": n, "status": status, **newton_work(record)})
                 break
             if start == "coarser":
-                warm = WarmStart(mesh, run.directory / "state.txt")
+                warm = run.warm_start(mesh)
             record = run.record
             rows.append({"start": start, "n": n, "status": "converged", **newton_work(record),
                          "wall_s": record.get("wall_s"), "max_theta": record.get("max_theta"),
