@@ -166,3 +166,24 @@ def test_bad_box_faces_are_named(face, text):
              "y0": "free", "y1": "free", "z0": face, "z1": "free"}
     with pytest.raises(SceneError, match=text):
         parse_box(table)
+
+
+@pytest.mark.parametrize("dimension, error", [(2, None), (3, "elasticity C has an entry the 3D scheme (class 6mm, poled along 3) does not model (C14 = 1e+09)")])
+def test_a_coupling_outside_class_6mm_is_refused_in_3d_only(tmp_path, dimension, error):
+    """C14 couples the out-of-plane strains: plane strain never sees it (2D accepts the
+    material), the 3D law would drop it silently (3D refuses it, one error line)."""
+    from harness.freefem import command, invoke
+    from test_materials import FREEFEM, variant
+
+    material = variant(tmp_path, "C14", ("[[166e9, 77e9, 78e9, 0, 0, 0]", "[[166e9, 77e9, 78e9, 1e9, 0, 0]"),
+                       ("[0, 0, 0, 43e9, 0, 0],", "[1e9, 0, 0, 43e9, 0, 0],"))
+    script = tmp_path / "law.edp"
+    script.write_text(f"macro DIMENSION {dimension} //\ninclude \"{material.resolve()}\"\n"
+                      f"include \"{(FREEFEM / 'material.idp').resolve()}\"\ncout << \"ok\" << endl;\n")
+    outcome = invoke(command(script, []), tmp_path, timeout_s=60)
+    out = (tmp_path / "stdout.txt").read_text()
+    errors = [line for line in out.splitlines() if line.startswith("error:")]
+    if error is None:
+        assert outcome.returncode == 0 and not errors, out
+    else:
+        assert outcome.returncode != 0 and errors == [f"error: material C14: {error}"], out
