@@ -180,9 +180,9 @@ SCHEMA: dict[str, dict[str, Key]] = {
     },
 }
 
-# A manufactured solution (harness/mms.py): exact u1, u2 [m], phi [V], theta [K] as sympy
-# expressions in x, y. All blank (the default): an ordinary run with the case's [loads].
-SCHEMA["manufactured"] = {name: Key(str, "") for name in ("u1", "u2", "phi", "theta")}
+# A manufactured solution (harness/mms.py): exact u1, u2 (u3 in 3D) [m], phi [V], theta [K]
+# as sympy expressions in x, y (and z). All blank (the default): an ordinary run with the case's [loads].
+SCHEMA["manufactured"] = {name: Key(str, "") for name in ("u1", "u2", "u3", "phi", "theta")}
 
 # The finite element of every field (freefem/scheme.idp's ELEMENT macro), and a reference
 # run to measure errors against inside FreeFEM (freefem/reference_error.idp, issue 5): its
