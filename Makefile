@@ -13,7 +13,7 @@ convergence: $(STAMP) freefem
 # A convergence study of every scene in cases/ and one table of their unknowns, dofs,
 # times and slopes (results/scenes/summary.csv).
 scenes: $(STAMP) freefem
-	$(PY) -m harness.scenes
+	$(PY) -m harness scenes
 
 test: $(STAMP) freefem
 	$(PY) -m pytest -q
@@ -39,7 +39,7 @@ clean-runs:
 # reused when cached), into results/verification/ and results/paper/gci.csv.
 .PHONY: verify
 verify: $(STAMP) freefem
-	$(PY) -m harness.verify --levels 4,8,16,32
+	$(PY) -m harness verify --levels 4,8,16,32
 
 # The stress suite (issue 4): every case of cases/hard/ on its levels, each converged or
 # failing with a classified reason, with the physical checks, into results/stress/
@@ -47,24 +47,25 @@ verify: $(STAMP) freefem
 # (paper_iterations.csv). Exits 1 on an unexpected failure or a failed check.
 .PHONY: stress branches
 stress: $(STAMP) freefem
-	$(PY) -m harness.stress
+	$(PY) -m harness stress
 
 # Both solution branches of the paper's scene, from zero and from the pressed start, each a
 # convergence study on levels 2 ... 64, into results/branches/ (branches.csv, branches.md).
 branches: $(STAMP) freefem
-	$(PY) -m harness.branches
+	$(PY) -m harness branches
 
 # What accuracy costs (issue 5): P1, P2, P1 with a loose Newton tolerance and P1 on a mesh
 # graded towards the ends of Gamma_3, against one P2 reference (h = 1/64); the P1 chain on
 # to h = 1/256 for time and memory against dofs; into results/cost/ (cost.csv, fits.csv,
 # frontier.md/.csv, scaling.csv, PNGs; ~5 min).
 # Cached runs keep their old timings: COST_FLAGS=--force reruns every level.
-# `make bench` repeats the timings that matter (finest level alone, the sweep, the CLI)
-# five times, medians and min-max, into results/bench/ (bench.csv, bench.md); it waits
+# `make bench` repeats the timings that matter (finest level alone, the sweep, the CLI, and
+# `python -m harness solve CASE --n FINEST --force` as a whole process beside its own FreeFEM
+# run: `process`) five times, medians and min-max, into results/bench/ (bench.csv, bench.md); it waits
 # (up to 20 min) for a 1-minute load below 1.2 first.
 .PHONY: cost bench
 cost: $(STAMP) freefem
-	$(PY) -m harness.cost cases/paper.toml $(COST_FLAGS)
+	$(PY) -m harness cost cases/paper.toml $(COST_FLAGS)
 
 bench: $(STAMP) freefem
-	$(PY) -m harness.bench cases/paper.toml $(BENCH_FLAGS)
+	$(PY) -m harness bench cases/paper.toml $(BENCH_FLAGS)

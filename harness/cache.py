@@ -16,7 +16,9 @@ import sys
 from pathlib import Path
 from typing import Any
 
+from harness.errors import FieldsError
 from harness.layout import REPO
+from harness.record import RunRecord, read_run_json
 
 # The harness modules whose code turns a scene into FreeFEM's inputs (main.edp, options,
 # macros): an edit to any of them may change a result without changing the scene.
@@ -111,15 +113,15 @@ def corrupted(directory: Path) -> str | None:
     return None
 
 
-def cached_record(directory: Path, key: str) -> dict[str, Any] | None:
+def cached_record(directory: Path, key: str) -> RunRecord | None:
     """run.json of a reusable cached run: same key, converged, outputs intact. A corrupted
     one is reported in one warning line and rerun."""
     try:
         stored = json.loads((directory / "inputs.json").read_text())
-        record = json.loads((directory / "run.json").read_text())
-    except (OSError, ValueError):
+        record = read_run_json(directory)
+    except (OSError, ValueError, FieldsError):  # FieldsError: written by another version
         return None
-    if stored.get("key") != key or record.get("converged") is not True:
+    if stored.get("key") != key or record is None or record.converged is not True:
         return None
     problem = corrupted(directory)
     if problem:

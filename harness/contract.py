@@ -51,7 +51,7 @@ class Failure(enum.Enum):
     ASSERTION = (6, "FreeFEM assertion failed")
     INTERNAL = (7, "FreeFEM internal error")
     EXECUTION_UNKNOWN = (8, "FreeFEM execution error")  # ErrorExec's UNKNOWN code in FreeFEM 4.9
-    DIVERGED = (10, "Newton diverged: no step passed the line search in 5 iterations")
+    DIVERGED = (10, "Newton diverged: no progress (a cycle, or 5 steps without passing the line search), also from the pressed restart")
     NAN = (11, "NaN/Inf in Newton")
     MAX_ITERATIONS = (12, "Newton hit its maximum number of iterations")
     BAD_INITIAL_GUESS = (13, "unknown initial guess")

@@ -1,5 +1,7 @@
 """Exceptions for expected failures: the CLI turns each into one `error:` line."""
 
+from harness.contract import Failure
+
 
 class HarnessError(Exception):
     """An expected failure whose message is one line a user can act on."""
@@ -14,7 +16,11 @@ class MeshError(HarnessError):
 
 
 class RunError(HarnessError):
-    """A FreeFEM run failed, timed out or did not converge."""
+    """A FreeFEM run failed, timed out or did not converge; `failure` says which."""
+
+    def __init__(self, message: str, failure: Failure = Failure.OTHER) -> None:
+        super().__init__(message)
+        self.failure = failure
 
 
 class FieldsError(HarnessError):

@@ -172,6 +172,14 @@ def error_detail(log: str) -> str:
     return line[:200]
 
 
+def failure_of(outcome: Outcome) -> Failure:
+    """The classified failure of a run that ended with a non-zero code (or none: timed out)."""
+    code = outcome.returncode
+    if code is None:
+        return Failure.TIMEOUT
+    return Failure.KILLED if code < 0 else Failure.from_code(code)
+
+
 def failure_reason(outcome: Outcome, timeout_s: float, detail: str, pressed: bool = False) -> str:
     """One line for a failed run; `pressed`: it started from the pressed guess (directly or
     down a chain that did), so suggesting that start would be no help."""

@@ -9,11 +9,12 @@ from __future__ import annotations
 import os
 from dataclasses import replace
 from pathlib import Path
+from typing import Sequence
 
 import gmsh
 import numpy as np
 
-from harness.atomic import sibling_temp
+from harness.atomic import sibling_temp, write_atomic
 from harness.errors import EnvironmentFault, MeshError
 from harness.faults import disk_full, fault
 from harness.guards import mesh_file_bytes, need_disk
@@ -214,3 +215,62 @@ def build_box_mesh(box: Box, n: int, directory: Path) -> MeshSummary:
     finally:
         tmp.unlink(missing_ok=True)
     return MeshSummary(path=target, n=n, nodes=len(mesh.points), triangles=len(mesh.tetrahedra), role_lengths=areas)
+
+
+def graded_coordinate(t: np.ndarray, focus: Sequence[float], power: float) -> np.ndarray:
+    """A monotone map of [a, b] onto itself that fixes the focus points and the breakpoints
+    between them and packs the lattice towards the focus points: on a segment from a focus
+    point f to the next breakpoint or focus point g (half-way between two focus points),
+    s = (t - f)/(g - f) becomes s^power: cells of size ~h^power at the focus against
+    power * h far from it (an r^(1/2) singularity asks for power >= 2 with P1, which
+    coarsens the rest of the mesh too much here: see README, Cost)."""
+    out = t.astype(float).copy()
+    points = sorted(focus)
+    for i, f in enumerate(points):
+        left = (points[i - 1] + f) / 2 if i > 0 else None
+        right = (f + points[i + 1]) / 2 if i + 1 < len(points) else None
+        lo = left if left is not None else -np.inf
+        hi = right if right is not None else np.inf
+        for end in (lo, hi):
+            if not np.isfinite(end):
+                end = t.min() if end < 0 else t.max()
+            span = end - f
+            if span == 0:
+                continue
+            mask = (t - f) / span >= 0
+            mask &= (t >= min(f, end)) & (t <= max(f, end))
+            out[mask] = f + span * ((t[mask] - f) / span) ** power
+    return out
+
+
+def graded_msh(uniform: Path, target: Path, width: float, focus_x: Sequence[float], power: float) -> None:
+    """Copy a structured MSH 2.2 mesh with its nodes moved by graded_coordinate in x
+    (towards focus_x) and in y (towards y = 0). The topology, labels and orientation (both
+    maps are increasing) are unchanged; the family is no longer nested."""
+    lines = uniform.read_text().splitlines()
+    start = lines.index("$Nodes") + 2
+    count = int(lines[start - 1])
+    rows = [line.split() for line in lines[start:start + count]]
+    xy = np.array([[float(r[1]), float(r[2])] for r in rows])
+    gx = graded_coordinate(np.clip(xy[:, 0], 0, width), focus_x, power)
+    gy = graded_coordinate(xy[:, 1], [0.0], power)
+    for i, r in enumerate(rows):
+        lines[start + i] = f"{r[0]} {float(gx[i])!r} {float(gy[i])!r} {r[3]}"
+    target.parent.mkdir(parents=True, exist_ok=True)
+    write_atomic(target, "\n".join(lines) + "\n")
+
+
+def contact_ends(geometry: Geometry) -> list[float]:
+    """The x of the ends of the contact segments on the bottom (the ends of Gamma_3)."""
+    return sorted({x for seg in geometry.bottom if seg.role == "contact" for x in (seg.x0, seg.x1)})
+
+
+def build_graded_mesh(geometry: Geometry, n: int, directory: Path, power: float) -> Path:
+    """The level-n mesh graded towards the ends of Gamma_3 (x) and the bottom (y) with
+    `power` (graded_msh); the uniform mesh when power is 1."""
+    uniform = build_mesh(geometry, n, directory).path
+    if power == 1.0:
+        return uniform
+    graded = uniform.with_name(f"graded_n{n}.msh")
+    graded_msh(uniform, graded, geometry.width, contact_ends(geometry), power)
+    return graded

@@ -2,8 +2,6 @@
 
 from __future__ import annotations
 
-import json
-import math
 import os
 from pathlib import Path
 from typing import Any
@@ -13,6 +11,7 @@ from harness.layout import Layout
 from harness.plot import plot_convergence
 from harness.study import Study
 from harness.versions import tool_versions
+from harness.writers import PRECISE_CSV_FORMAT, csv_text, json_text
 
 # Physical quantities of each run worth keeping next to the errors (from run.json).
 RUN_FACTS = (
@@ -32,8 +31,8 @@ def write_report(study: Study, layout: Layout) -> dict[str, Path]:
     }
     temps = {kind: sibling_temp(path) for kind, path in targets.items()}
     try:
-        temps["csv"].write_text(study.table.to_csv(index=False, float_format="%.10g"))
-        temps["summary"].write_text(json.dumps(jsonable(summary(study)), indent=2) + "\n")
+        temps["csv"].write_text(csv_text(study.table, PRECISE_CSV_FORMAT))
+        temps["summary"].write_text(json_text(summary(study)))
         plot_convergence(study, temps["plot"])
         for kind, target in targets.items():
             os.replace(temps[kind], target)
@@ -48,7 +47,7 @@ def summary(study: Study) -> dict[str, Any]:
     finest = study.table.iloc[-2]  # the finest level with an error
     return {
         "case": study.scene.name,
-        "description": study.scene.table["scene"]["description"],
+        "description": study.scene.sections.scene.description,
         "material": study.scene.material,
         "initial_guess": study.scene.initial_guess,
         "levels": [int(n) for n in study.table["n"]],
@@ -62,24 +61,11 @@ def summary(study: Study) -> dict[str, Any]:
         "share_of_total_at_finest": {f: finest[f"err_{f}"] / finest["err_total"] for f in study.fields},
         "sweep_wall_s": study.wall_s,
         # Each level's cache key: a level dir whose inputs.json differs is not this study's run.
-        "runs": {str(n): {**{k: run.record.get(k) for k in RUN_FACTS}, "key": run.key}
+        "runs": {str(n): {**{k: getattr(run.record, k) for k in RUN_FACTS}, "key": run.key}
                  for n, run in sorted(study.runs.items())},
         "scene": study.scene.table,
         "tools": tool_versions(),
     }
-
-
-def jsonable(value: Any) -> Any:
-    """Strict JSON: NaN (no value, e.g. the reference's error) becomes null, inf "inf"."""
-    if isinstance(value, dict):
-        return {str(k): jsonable(v) for k, v in value.items()}
-    if isinstance(value, (list, tuple)):
-        return [jsonable(v) for v in value]
-    if hasattr(value, "item"):  # numpy scalars
-        value = value.item()
-    if isinstance(value, float) and not math.isfinite(value):
-        return None if math.isnan(value) else ("inf" if value > 0 else "-inf")
-    return value
 
 
 def format_table(study: Study) -> str:

@@ -12,12 +12,13 @@ from typing import Any
 
 from harness import freefem
 from harness.atomic import write_atomic
+from harness.contract import Failure
 from harness.cache import cached_record, run_inputs, sha256_file, write_checksums
 from harness.errors import EnvironmentFault, RunError, SceneError
 from harness.faults import disk_full
 from harness.signals import CHILDREN, Interrupted
 from harness.layout import Layout
-from harness.mms import scene_macros
+from harness.record import RunRecord, read_run_json, write_run_json
 from harness.scene import Scene
 from harness.script import main_script
 
@@ -35,9 +36,9 @@ def start_of(scene: Scene, warm: WarmStart | None) -> tuple[str, WarmStart | Non
     """FreeFEM's initial_guess and the state it reads, from the scene and an optional coarser run."""
     guess = scene.initial_guess
     if guess == "coarser":
-        return ("file", warm) if warm else (scene.table["scene"]["coarsest_guess"], None)
+        return ("file", warm) if warm else (scene.sections.scene.coarsest_guess, None)
     if guess == "file":
-        given = WarmStart(Path(scene.table["scene"]["initial_mesh"]), Path(scene.table["scene"]["initial_state"]))
+        given = WarmStart(Path(scene.sections.scene.initial_mesh), Path(scene.sections.scene.initial_state))
         for what, path in (("initial_mesh", given.mesh), ("initial_state", given.state)):
             if not path.is_file():
                 raise SceneError(f"initial_guess = file: scene.{what} {str(path)!r} is not a file")
@@ -49,7 +50,7 @@ def start_of(scene: Scene, warm: WarmStart | None) -> tuple[str, WarmStart | Non
 class RunResult:
     n: int
     directory: Path
-    record: dict[str, Any]  # run.json, plus the harness's wall_s
+    record: RunRecord  # run.json, with the harness's measurements
     reused: bool
     key: str = ""  # the cache key it was run or reused under
 
@@ -217,7 +218,7 @@ def solver_inputs(
     scene: Scene, mesh: Path, n: int, layout: Layout, guess: str, start: WarmStart | None, out: Path | None = None
 ) -> tuple[str, list[str]]:
     """main.edp's text and FreeFEM's options. A start state "-" is read from stdin (a pipelined run)."""
-    macros = {**scene_macros(scene, layout), **scene.reference_macros()}
+    macros = {**manufactured_macros(scene, layout), **scene.reference_macros()}
     text = main_script(scene.material, scene.effects, layout, element=scene.element, macros=macros,
                        linear_solver=scene.linear_solver, dimension=scene.dimension)
     options = ["-mesh", str(mesh.resolve()), "-out", str(out.resolve() if out else "-"), "-n", str(n)]
@@ -226,6 +227,16 @@ def solver_inputs(
         state = str(start.state) if str(start.state) == "-" else str(start.state.resolve())
         options += ["-init.mesh", str(start.mesh.resolve()), "-init.state", state]
     return text, options
+
+
+def manufactured_macros(scene: Scene, layout: Layout) -> dict[str, str]:
+    """The macros of a scene's [manufactured] solution (harness/mms.py): a hook loaded only
+    for such a scene, so no other run pays for importing sympy (0.6 s)."""
+    if not scene.manufactured:
+        return {}
+    from harness.mms import scene_macros
+
+    return scene_macros(scene, layout)
 
 
 def solver_command(
@@ -241,49 +252,50 @@ def solver_command(
 def collect(
     work: Path, scene: Scene, n: int, layout: Layout, outcome: freefem.Outcome, guess: str, start: WarmStart | None,
     waited: float | None = None,
-) -> dict[str, Any]:
+) -> RunRecord:
     """run.json of a finished run, with the harness's measurements (a pipelined run's wall
     time less its `waited` seconds); a RunError with the reason if it failed."""
     where = f"{scene.name} n={n}"
     log = log_file(work, layout.failed_dir(scene.name, n))
-    record = read_record(work)
+    record = read_run_json(work)
     if outcome.returncode != 0:
-        detail = (record or {}).get("reason") or freefem.error_detail(read_logs(work))
+        detail = (record.reason if record else None) or freefem.error_detail(read_logs(work))
         reason = freefem.failure_reason(outcome, scene.timeout_s, str(detail), started_pressed(scene, guess))
-        raise RunError(f"{where}: {reason} (see {log})")
+        raise RunError(f"{where}: {reason} (see {log})", freefem.failure_of(outcome))
     if record is None:
-        raise RunError(f"{where}: FreeFEM wrote no readable run.json (see {log})")
-    if record.get("converged") is not True:
-        raise RunError(f"{where}: not converged: {record.get('reason', 'no reason given')} (see {log})")
+        raise RunError(f"{where}: FreeFEM wrote no readable run.json (see {log})", Failure.NO_OUTPUT)
+    if record.converged is not True:
+        raise RunError(f"{where}: not converged: {record.reason or 'no reason given'} (see {log})",
+                       NEWTON_REASONS.get(str(record.reason), Failure.NOT_CONVERGED))
     if not (work / "solution.vtu").is_file():
-        raise RunError(f"{where}: FreeFEM wrote no solution.vtu (see {log})")
-    record["wall_s"] = outcome.wall_s
+        raise RunError(f"{where}: FreeFEM wrote no solution.vtu (see {log})", Failure.NO_OUTPUT)
+    record = record.with_(wall_s=outcome.wall_s)
     if waited is not None:
-        record.update(pipelined=True, waited_s=waited, wall_s=outcome.wall_s - waited)
+        record = record.with_(pipelined=True, waited_s=waited, wall_s=outcome.wall_s - waited)
     # FreeFEM's own VmHWM (memory.idp); wait4's figure, which cannot read below the harness's
     # resident size at fork time, only where /proc is missing.
-    own = record.get("peak_rss_mb", -1) > 0
-    record["peak_rss_source"] = "freefem VmHWM" if own else "harness wait4"
-    if not own:
-        record["peak_rss_mb"] = outcome.peak_rss_mb
-    record["initial_guess"] = scene.initial_guess
-    record["started_from"] = guess if not start else f"file {start.state}"
-    write_atomic(work / "run.json", json.dumps(record, indent=2) + "\n")
+    own = (record.peak_rss_mb or -1) > 0
+    record = record.with_(peak_rss_source="freefem VmHWM" if own else "harness wait4",
+                          peak_rss_mb=record.peak_rss_mb if own else outcome.peak_rss_mb,
+                          initial_guess=scene.initial_guess,
+                          started_from=guess if not start else f"file {start.state}")
+    write_run_json(record, work)
     return record
+
+
+# run.json's `reason` of a run that stopped without converging (freefem/newton.idp).
+NEWTON_REASONS = {"diverged": Failure.DIVERGED, "max_iterations": Failure.MAX_ITERATIONS, "nan": Failure.NAN}
 
 
 def started_pressed(scene: Scene, guess: str) -> bool:
     """Whether a run started from the pressed guess, itself or down a chain that did."""
-    chained = scene.initial_guess == "coarser" and scene.table["scene"].get("coarsest_guess") == "pressed"
+    chained = scene.initial_guess == "coarser" and scene.sections.scene.coarsest_guess == "pressed"
     return guess == "pressed" or chained
 
 
-def read_record(work: Path) -> dict[str, Any] | None:
-    try:
-        record = json.loads((work / "run.json").read_text())
-    except (OSError, ValueError):
-        return None
-    return record if isinstance(record, dict) else None
+def read_record(work: Path) -> RunRecord | None:
+    """The run.json a run left in `work` (None: none readable)."""
+    return read_run_json(work)
 
 
 def read_logs(work: Path) -> str:

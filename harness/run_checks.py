@@ -7,13 +7,14 @@ import sys
 from dataclasses import dataclass
 from typing import Any, Iterable
 
+from harness.checks import CHECK_FLAGS, physical_checks
 from harness.errors import FieldsError
 from harness.fields import Fields, read_fields
 from harness.guards import max_displacement_gradient, small_strain_warning
 from harness.run import RunResult
 from harness.scene import Scene
 
-# Check flag -> the value(s) worth showing when it fails (harness/stress.py physical_checks).
+# Check flag -> the value(s) worth showing when it fails (harness/checks.py physical_checks).
 SHOWN = {
     "force_ok": ("force_imbalance", "force_residual_bound"),
     "sigma_nu_ok": ("max_sigma_nu", "sigma_nu_scale"),
@@ -43,8 +44,7 @@ class Checked:
 
 
 def check_run(scene: Scene, run: RunResult) -> Checked:
-    """Evaluate the checks of one converged run (the tolerances are stress.py's)."""
-    from harness.stress import CHECK_FLAGS, physical_checks  # its pandas import only when checking
+    """Evaluate the checks of one converged run (harness/checks.py)."""
 
     record = run.record
     fields = solution_fields(run)
@@ -54,10 +54,10 @@ def check_run(scene: Scene, run: RunResult) -> Checked:
         warning = small_strain_warning(gradient, f"{scene.name} n={run.n}")
         if warning:
             warnings.append(warning)
-    if not record.get("checks"):
+    if not record.checks:
         return Checked(run.n, f"checks n={run.n}: none reported by the solver", True, tuple(warnings))
     values = physical_checks(record, scene)  # every quantity FreeFEM's (checks.idp)
-    reported = record["checks"]
+    reported = record.checks
     # A check whose quantity the solver did not write (a scene or dimension checks.idp does not
     # cover yet) is said to be missing, not failed.
     missing = [flag for flag in CHECK_FLAGS if not all(key in reported for key in NEEDS[flag])]

@@ -13,21 +13,30 @@ from typing import Any, Iterable
 from harness.errors import SceneError
 from harness.box import Box, parse_box
 from harness.schema import EFFECTS, REQUIRED, SCHEMA, SOLVER_SECTIONS, Key, effect_of, geometry_keys
+from harness.sections import sections_of
 from harness.segments import Geometry, parse_geometry
 
 
 @dataclass(frozen=True)
 class Scene:
-    """A validated case. `table` is the resolved case file (defaults filled, overrides applied)."""
+    """A validated case. `sections` holds each section of the resolved case file (defaults
+    filled, overrides applied) as a frozen dataclass (harness/sections.py); `table` is the
+    same as plain data, for writing into a summary and for the cache key, never indexed
+    (the [expect] section is left out of it: it changes no result)."""
 
     source: Path
     table: dict[str, dict[str, Any]]
     geometry: Geometry | Box
     warnings: tuple[str, ...] = ()
+    sections: Any = None
+
+    @property
+    def expect(self) -> Any:
+        return self.sections.expect
 
     @property
     def name(self) -> str:
-        return self.table["scene"]["name"]
+        return self.sections.scene.name
 
     @property
     def dimension(self) -> int:
@@ -35,12 +44,12 @@ class Scene:
 
     @property
     def material(self) -> str:
-        return self.table["scene"]["material"]
+        return self.sections.scene.material
 
     @property
     def effects(self) -> tuple[str, ...]:
         """The scene's effects in the canonical order of schema.EFFECTS."""
-        on = set(self.table["scene"]["effects"])
+        on = set(self.sections.scene.effects)
         return tuple(e for e in EFFECTS if e in on)
 
     @property
@@ -49,27 +58,27 @@ class Scene:
 
     @property
     def element(self) -> str:
-        return self.table["scene"]["element"]
+        return self.sections.scene.element
 
     @property
     def initial_guess(self) -> str:
-        return self.table["scene"]["initial_guess"]
+        return self.sections.scene.initial_guess
 
     @property
     def timeout_s(self) -> float:
-        return self.table["run"]["timeout_s"]
+        return self.sections.run.timeout_s
 
     @property
     def linear_solver(self) -> str:
-        return self.table["run"]["linear_solver"]
+        return self.sections.run.linear_solver
 
     @property
     def levels(self) -> tuple[int, ...]:
-        return tuple(self.table["study"]["levels"])
+        return tuple(self.sections.study.levels)
 
     @property
     def slope_band(self) -> tuple[float, float]:
-        low, high = self.table["study"]["slope_band"]
+        low, high = self.sections.study.slope_band
         return float(low), float(high)
 
     @property
@@ -105,7 +114,7 @@ class Scene:
 
     @property
     def reference_state(self) -> str:
-        return self.table["reference"]["state"]
+        return self.sections.reference.state
 
     def reference_macros(self) -> dict[str, str]:
         """REFERENCE switches on freefem/reference_error.idp when a reference state is set."""
@@ -128,9 +137,12 @@ def load_scene(path: Path, overrides: Iterable[str] = ()) -> Scene:
         table, warnings = resolve(raw)
         kind = table["geometry"]["kind"]
         geometry = parse_box(table["geometry"]) if kind == "box" else parse_geometry(table["geometry"])
+        check_expect(table["expect"])
     except SceneError as exc:
         raise SceneError(f"{path}: {exc}") from None  # every case-file error names the file
-    return Scene(source=path, table=table, geometry=geometry, warnings=warnings)
+    sections = sections_of(table)
+    table = {name: values for name, values in table.items() if name != "expect"}
+    return Scene(source=path, table=table, geometry=geometry, warnings=warnings, sections=sections)
 
 
 def parse_value(text: str) -> Any:
@@ -180,6 +192,14 @@ def resolve(raw: dict) -> tuple[dict[str, dict[str, Any]], tuple[str, ...]]:
                 continue
             table[section][key] = checked(f"{section}.{key}", spec, given.get(key, spec.default))
     return table, tuple(warnings)
+
+
+def check_expect(expect: dict[str, Any]) -> None:
+    """A known failure names its classified reason and why; a converging case names neither."""
+    if expect["status"] == "known_failure" and not (expect["failure"] and expect["why"]):
+        raise SceneError("expect.status = \"known_failure\" needs expect.failure and expect.why")
+    if expect["status"] == "converged" and expect["failure"]:
+        raise SceneError(f"expect.failure = {expect['failure']!r} needs expect.status = \"known_failure\"")
 
 
 def checked(name: str, spec: Key, value: Any) -> Any:

@@ -211,3 +211,22 @@ BOX_GEOMETRY: dict[str, Key] = {
 def geometry_keys(given: dict[str, Any]) -> dict[str, Key]:
     """The [geometry] schema of the kind a case file names."""
     return BOX_GEOMETRY if given.get("kind") == "box" else SCHEMA["geometry"]
+
+
+# What a case promises (the stress suite, cases/hard/; harness/studies/stress.py), the way a
+# MOOSE test spec carries a `requirement`: the outcome expected from the solver as it is
+# (converged, or a known failure with its classified reason and why), one sentence of what
+# the case must show, and the tolerances its test applies, each with why. A case whose
+# known failure gets fixed is noticed (the suite fails until the expectation is flipped).
+EXPECTED_STATUSES = ("converged", "known_failure")
+FAILURE_STATUSES = ("diverged", "max_iterations", "nan", "freefem_error", "timeout")
+SCHEMA["expect"] = {
+    "hard_because": Key(str, ""),
+    "requirement": Key(str, ""),
+    "status": Key(str, "converged", one_of(*EXPECTED_STATUSES)),
+    "failure": Key(str, "", one_of("", *FAILURE_STATUSES)),  # a known failure's classified reason
+    "why": Key(str, ""),  # why it fails, for a known failure
+    # The most Newton iterations any level of the case may take (coarse levels, n <= 8).
+    "max_newton_iterations": Key(int, 40, positive),
+    "max_newton_iterations_why": Key(str, ""),
+}

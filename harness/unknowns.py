@@ -109,8 +109,7 @@ class Unknowns:
                              for r, c in sorted(blocks) if c == "t" and r in newton)
         bulk_matrix = matrix("K{r}{c}", blocks)
         # Contact: the diagonal block of each Newton field (a zero block of its shape when its
-        # contact term is off) and the block of its dependence on u (open-slope variant while
-        # the contact state moves, newton.idp).
+        # contact term is off) and the block of its dependence on u.
         tangent, residual = [], []
         on = {f.low: f.contact in self.effects for f in FIELDS}
         blocks = set()
@@ -119,8 +118,7 @@ class Unknowns:
             tangent.append(f"matrix T{k}{k} = {'vT' if on[k] else 'vZ'}{k}{k}({f.space}, {f.space});")
             blocks.add((k, k))
             if k != "u" and on[k]:
-                tangent.append(f"matrix T{k}u; if (open) T{k}u = vT{k}uOpen(Uh, {f.space}); "
-                               f"else T{k}u = vT{k}u(Uh, {f.space});")
+                tangent.append(f"matrix T{k}u = vT{k}u(Uh, {f.space});")
                 blocks.add((k, "u"))
         for f in self.fields:
             body = f"r = vR{f.low}(0, {f.space});" if on[f.low] else "r = 0;"
@@ -140,7 +138,7 @@ class Unknowns:
             f"macro bulkBlocks() {bulk} //",
             f"macro bulkMatrix() {bulk_matrix} //",
             f"macro staggeredThetaLoads() {staggered} //" if self.staggered else "",
-            f"macro contactBlocks(open) {' '.join(tangent)} //",
+            f"macro contactBlocks() {' '.join(tangent)} //",
             f"macro contactMatrix() {matrix('T{r}{c}', blocks)} //",
             *residual,
             f'string newtonFieldNames = "{", ".join(f.name for f in self.newton)}";',

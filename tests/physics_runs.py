@@ -2,13 +2,12 @@
 
 from __future__ import annotations
 
-import json
 from dataclasses import dataclass
 from pathlib import Path
-from typing import Any
 
 from harness.cli import main
 from harness.fields import Fields, read_fields
+from harness.record import RunRecord, read_run_json
 
 DATA = Path(__file__).parent / "data"
 CASES = Path(__file__).parents[1] / "cases"
@@ -16,7 +15,7 @@ CASES = Path(__file__).parents[1] / "cases"
 
 @dataclass(frozen=True)
 class Solved:
-    record: dict[str, Any]
+    record: RunRecord
     fields: Fields
 
 
@@ -30,5 +29,6 @@ def solve(case: Path, n: int, results: Path, *overrides: str) -> Solved:
         if item.startswith("scene.name="):
             name = item.split("=", 1)[1].strip('"')
     directory = results / name / f"n{n}"
-    record = json.loads((directory / "run.json").read_text())
+    record = read_run_json(directory)
+    assert record is not None
     return Solved(record, read_fields(directory / "solution.vtu"))

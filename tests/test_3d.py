@@ -70,8 +70,8 @@ def test_uniform_pressure_on_a_frictionless_foundation(tmp_path):
     """Rollers on the sides: uniaxial strain, linear in z, which P1 represents exactly:
     contact pressure = load and penetration = load / c_nu, to Newton's tolerance."""
     run = solve(DATA / "block3d.toml", 2, tmp_path)
-    assert run.record["converged"]
-    assert run.record["contact_force"] == pytest.approx(100.0, rel=1e-9)  # area 1 m^2
+    assert run.record.converged
+    assert run.record.contact_force == pytest.approx(100.0, rel=1e-9)  # area 1 m^2
     bottom = np.isclose(run.fields.points[:, 2], 0.0)
     assert -run.fields.field("u")[bottom, 2] == pytest.approx(np.full(bottom.sum(), 100.0 / 1e7), rel=1e-9)
     assert run.fields.field("contact_pressure")[bottom] == pytest.approx(np.full(bottom.sum(), 100.0), rel=1e-6)
@@ -91,10 +91,10 @@ def test_a_tangential_load_below_s_area_sticks(tmp_path):
     x component in 3D)."""
     load = (0.5 * S * math.cos(math.pi / 6), 0.5 * S * math.sin(math.pi / 6))
     run = friction_run(tmp_path, "stick3d", 2, S, load, ("free",) * 4)
-    assert run.record["converged"]
-    assert run.record["slip_nodes"][-1] == 0
-    assert run.record["friction_force"] == pytest.approx(load[0], rel=1e-8)
-    assert run.record["checks"]["contact_force_on_body"][:2] == pytest.approx([-load[0], -load[1]], rel=1e-8)
+    assert run.record.converged
+    assert run.record.slip_nodes[-1] == 0
+    assert run.record.friction_force == pytest.approx(load[0], rel=1e-8)
+    assert run.record.checks["contact_force_on_body"][:2] == pytest.approx([-load[0], -load[1]], rel=1e-8)
     assert run.fields.field("contact_shear").max() < S
 
 
@@ -104,7 +104,7 @@ def test_a_load_beyond_the_bound_slips_at_s_off_axis(tmp_path):
     the elastic displacement, off every axis: the disc projection, not two 1D clamps."""
     bound = 1e-4
     run = friction_run(tmp_path, "slip3d", 4, bound, (8.66, 5.0), ("roller_x", "free", "roller_y", "free"))
-    assert run.record["converged"]
+    assert run.record.converged
     bottom = np.isclose(run.fields.points[:, 2], 0.0)
     shear = run.fields.field("contact_shear")[bottom]
     slipping = shear > 0.5 * bound
@@ -114,7 +114,7 @@ def test_a_load_beyond_the_bound_slips_at_s_off_axis(tmp_path):
     angles = np.degrees(np.arctan2(u[:, 1], u[:, 0]))
     off_axis = (np.abs(angles % 90) > 10) & (np.abs(angles % 90) < 80)
     assert off_axis.sum() >= 10, angles
-    assert run.record["checks"]["max_abs_sigma_tau"] <= bound * (1 + 1e-6)
+    assert run.record.checks["max_abs_sigma_tau"] <= bound * (1 + 1e-6)
 
 
 def test_paper3d_is_symmetric_about_the_mid_plane_to_its_discretisation_error(tmp_path):

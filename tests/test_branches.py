@@ -9,7 +9,7 @@ import json
 import pandas as pd
 import pytest
 
-from harness import branches
+from harness.studies import branches
 from harness.layout import REPO, Layout
 from harness.scene import load_scene
 
@@ -55,7 +55,7 @@ def test_the_branch_does_not_depend_on_chaining_the_levels(rows):
 def test_make_convergence_shows_the_branch_from_zero():
     scene = load_scene(REPO / "cases" / "paper.toml")
     assert scene.initial_guess == "coarser"
-    assert scene.table["scene"]["coarsest_guess"] == "zero"
+    assert scene.sections.scene.coarsest_guess == "zero"
 
 
 def test_the_committed_table_reports_both_branches():

@@ -12,7 +12,7 @@ import numpy as np
 import pandas as pd
 import pytest
 
-from harness.cost import (
+from harness.studies.cost import (
     Fits,
     PowerLaw,
     add_chain_costs,
@@ -29,7 +29,7 @@ from harness.layout import Layout
 from harness.mesh import build_mesh
 from harness.norms import error_norms
 from harness.scene import load_scene
-from harness.study import run_chain
+from harness.engine import run_chain, runs_of
 
 CASE = Path(__file__).parents[1] / "cases" / "paper.toml"
 H = np.array([1 / 4, 1 / 8, 1 / 16, 1 / 32, 1 / 64])
@@ -122,7 +122,7 @@ def chain(tmp_path: Path, levels, *overrides):
     scene = load_scene(CASE, overrides)
     layout = Layout(results=tmp_path)
     meshes = {n: build_mesh(scene.geometry, n, layout.meshes_dir(scene.name)).path for n in levels}
-    return meshes, run_chain(scene, meshes, layout, False, lambda s: None)
+    return meshes, runs_of(run_chain(scene, meshes, layout, False, lambda s: None))
 
 
 def reference_options(meshes, runs, n: int, element: str) -> list[str]:
@@ -138,14 +138,14 @@ def test_freefem_reference_errors_of_p1_agree_with_the_harness_norms(tmp_path):
     _, runs = chain(tmp_path, (2, 4), "scene.name=p1", *reference_options(meshes, ref, 8, "P1"))
     fine = read_fields(ref[8].solution)
     for n in (2, 4):
-        ours = runs[n].record["reference_errors"]
+        ours = runs[n].record.reference_errors
         theirs = error_norms(read_fields(runs[n].solution), fine, ["u", "phi", "theta"])
         for name in ("u", "phi", "theta"):
             assert ours[name] == pytest.approx(theirs[name], rel=1e-9), (n, name)
     # The reference against itself: zero (a P1 run at the reference's level).
     _, same = chain(tmp_path, (2, 4, 8), "scene.name=same", *reference_options(meshes, ref, 8, "P1"))
-    assert all(v < 1e-12 * max(1.0, abs(same[8].record["reference_norms"][k]))
-               for k, v in same[8].record["reference_errors"].items())
+    assert all(v < 1e-12 * max(1.0, abs(same[8].record.reference_norms[k]))
+               for k, v in same[8].record.reference_errors.items())
 
 
 def test_p2_is_more_accurate_than_p1_at_the_same_h_and_reports_its_costs(tmp_path):
@@ -153,16 +153,16 @@ def test_p2_is_more_accurate_than_p1_at_the_same_h_and_reports_its_costs(tmp_pat
     opts = reference_options(meshes, ref, 8, "P2")
     _, p1 = chain(tmp_path, (2, 4), "scene.name=p1", "scene.element=P1", *opts)
     _, p2 = chain(tmp_path, (2, 4), "scene.name=p2", "scene.element=P2", *opts)
-    e1, e2 = p1[4].record["reference_errors"], p2[4].record["reference_errors"]
+    e1, e2 = p1[4].record.reference_errors, p2[4].record.reference_errors
     assert set(e1) == set(e2) == {"u", "phi", "theta"}
     for name in e1:
         assert 0 < e2[name] < 0.5 * e1[name], name
-    assert p2[4].record["element"] == "P2" and p1[4].record["element"] == "P1"
-    assert p2[4].record["dofs"] == 4 * (2 * 16 + 1) * (2 * 4 + 1)  # P2 nodes of the 16 x 4 cell mesh
+    assert p2[4].record.element == "P2" and p1[4].record.element == "P1"
+    assert p2[4].record.dofs == 4 * (2 * 16 + 1) * (2 * 4 + 1)  # P2 nodes of the 16 x 4 cell mesh
     for key in COST_KEYS:
-        value = p2[4].record.get(key)
+        value = getattr(p2[4].record, key)
         assert isinstance(value, (int, float)) and value >= 0, key
-    assert p2[4].record["newton_over_linear"] > 1
+    assert p2[4].record.newton_over_linear > 1
 
 
 def test_a_small_cost_study_writes_its_table_plots_and_frontier(tmp_path):
@@ -185,7 +185,7 @@ def test_a_small_cost_study_writes_its_table_plots_and_frontier(tmp_path):
 
 
 def test_graded_coordinate_fixes_the_breakpoints_and_packs_towards_the_focus():
-    from harness.cost import graded_coordinate
+    from harness.mesh import graded_coordinate
     t = np.linspace(0.0, 4.0, 65)
     g = graded_coordinate(t, [1.0, 3.0], 2.0)
     assert np.all(np.diff(g) > 0)  # increasing: triangles keep their orientation

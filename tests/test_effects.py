@@ -12,6 +12,7 @@ import numpy as np
 import pytest
 
 from harness.cli import main
+from harness.record import RunRecord, read_run_json
 from harness.errors import SceneError
 from harness.fields import read_fields
 from harness.layout import REPO
@@ -34,13 +35,13 @@ def uncoupled_freefem(tmp_path: Path, zero: tuple[str, ...]) -> Path:
     return tree
 
 
-def run(case: Path, n: int, results: Path, *argv: str) -> tuple[dict, dict[str, np.ndarray]]:
+def run(case: Path, n: int, results: Path, *argv: str) -> tuple[RunRecord, dict[str, np.ndarray]]:
     assert main(["solve", str(case), "--n", str(n), "--results", str(results), *argv]) == 0
     name = next((a.split("=", 1)[1] for a in argv if a.startswith("scene.name=")), load_scene(case).name)
     directory = results / name / f"n{n}"
-    record = json.loads((directory / "run.json").read_text())
+    record = read_run_json(directory)
     fields = read_fields(directory / "solution.vtu")
-    return record, {f: fields.field(f) for f in record["fields"]}
+    return record, {f: fields.field(f) for f in record.fields}
 
 
 # (reduced scene, material tensors that vanish with the effects it leaves off, conductance
@@ -63,8 +64,8 @@ def test_a_reduced_scene_equals_the_full_model_with_its_couplings_zeroed(tmp_pat
     full, full_fields = run(CASES / "paper.toml", 8, tmp_path / "f", *full_args)
     # The scenes share geometry, loads and contact data with the paper's (asserted, so the
     # comparison is of effects only).
-    assert load_scene(CASES / f"{scene}.toml").table["geometry"] == load_scene(CASES / "paper.toml").table["geometry"]
-    assert reduced["unknowns_per_node"] < full["unknowns_per_node"] == 4
+    assert load_scene(CASES / f"{scene}.toml").sections.geometry == load_scene(CASES / "paper.toml").sections.geometry
+    assert reduced.unknowns_per_node < full.unknowns_per_node == 4
     for field, values in reduced_fields.items():
         scale = np.abs(full_fields[field]).max()
         # Both Newton runs stop at a relative increment of 1e-9 (newton.rtol) and reach it
@@ -72,8 +73,8 @@ def test_a_reduced_scene_equals_the_full_model_with_its_couplings_zeroed(tmp_pat
         # leaves room for the different block orderings of the two linear systems.
         assert np.abs(values - full_fields[field]).max() <= 1e-8 * scale, field
     # The fields the reduced scene does not have are identically zero in the full model.
-    for field in set(full["fields"]) - set(reduced["fields"]):
-        assert np.abs(full_fields[field]).max() <= 1e-12 * max(1.0, abs(full["scales"]["Phi"])), field
+    for field in set(full.fields) - set(reduced.fields):
+        assert np.abs(full_fields[field]).max() <= 1e-12 * max(1.0, abs(full.scales["Phi"])), field
 
 
 @pytest.mark.parametrize(
@@ -88,11 +89,11 @@ def test_a_reduced_scene_equals_the_full_model_with_its_couplings_zeroed(tmp_pat
 )
 def test_unknowns_per_node_and_fields_follow_the_effects(tmp_path, case, unknowns, fields, strategy):
     record, values = run(CASES / f"{case}.toml", 4, tmp_path)
-    assert record["unknowns_per_node"] == unknowns
-    assert record["dofs"] == unknowns * record["nodes"]  # P1: one value per node and unknown
-    assert record["fields"] == fields and sorted(values) == sorted(fields)
-    assert record["strategy"].startswith(strategy)
-    assert record["converged"]
+    assert record.unknowns_per_node == unknowns
+    assert record.dofs == unknowns * record.nodes  # P1: one value per node and unknown
+    assert record.fields == fields and sorted(values) == sorted(fields)
+    assert record.strategy.startswith(strategy)
+    assert record.converged
 
 
 def conductances_off() -> list[str]:
@@ -107,13 +108,13 @@ def test_the_staggered_temperature_is_solved_once_and_exactly(tmp_path):
     """theta without thermal contact is linear and one-way coupled: its residual after the
     single staggered solve is at round-off, and it equals the monolithic solve with k_c = 0."""
     staggered, s_fields = run(CASES / "heated.toml", 8, tmp_path / "s")
-    assert staggered["strategy"].startswith("staggered")
+    assert staggered.strategy.startswith("staggered")
     # Scaled residual of the heat equation after its one solve. Each node's scaled source
     # load is ~ h^2 * 1e3 / (k11 * Theta) ~ 1e-3 at h = 1/8: 1e-12 of that is round-off.
-    assert staggered["staggered_theta_residual"] <= 1e-15
+    assert staggered.staggered_theta_residual <= 1e-15
     monolithic, m_fields = run(CASES / "heated.toml", 8, tmp_path / "m", "--set", "scene.name=mono",
                                "--effects", ",".join(FULL), *conductances_off())
-    assert monolithic["strategy"].startswith("monolithic")
+    assert monolithic.strategy.startswith("monolithic")
     for field in ("u", "phi", "theta"):
         scale = np.abs(m_fields[field]).max()
         assert np.abs(s_fields[field] - m_fields[field]).max() <= 1e-8 * scale, field  # as above
@@ -147,7 +148,7 @@ def test_data_of_an_effect_that_is_off_is_a_warning_and_not_passed_on():
 
 def test_the_command_line_switches_effects(tmp_path, capsys):
     record, values = run(CASES / "paper.toml", 2, tmp_path, "--effects", "contact,friction")
-    assert record["fields"] == ["u"] and record["unknowns_per_node"] == 2
+    assert record.fields == ["u"] and record.unknowns_per_node == 2
     assert "warning: thermal_contact.k_c is ignored" in capsys.readouterr().err
 
 
@@ -185,5 +186,5 @@ def test_every_valid_combination_of_effects_compiles_and_solves(tmp_path, case, 
         except RunError as exc:
             failed.append(f"{combo}: {exc}")
             continue
-        assert record["unknowns_per_node"] == dimension + ("piezoelectric" in combo) + ("thermal" in combo)
+        assert record.unknowns_per_node == dimension + ("piezoelectric" in combo) + ("thermal" in combo)
     assert not failed, "\n".join(failed)

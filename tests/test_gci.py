@@ -9,7 +9,8 @@ import pandas as pd
 import pytest
 
 from harness.gci import SAFETY, observed_order, three_grid
-from harness.verify import finest_triples, gci_table
+from harness.record import RunRecord
+from harness.studies.verify import finest_triples, gci_table
 
 
 def power_law(f0: float, c: float, p: float, h: tuple[float, ...]) -> tuple[float, ...]:
@@ -82,7 +83,7 @@ def test_in_the_asymptotic_range_the_ratio_is_about_one():
 def test_the_table_has_every_triple_of_every_quantity():
     levels = [2, 4, 8, 16]
     errors = pd.DataFrame({"n": levels, "err_u": [4.0, 2.0, 1.0, math.nan], "err_total": [1, 1, 1, math.nan]})
-    records = {n: {"contact_force": 5.0 + 1.0 / n**2, "max_theta": "n/a"} for n in levels}
+    records = {n: RunRecord(contact_force=5.0 + 1.0 / n**2, max_theta="n/a") for n in levels}
     table = gci_table(errors, records)
     assert set(table["quantity"]) == {"err_u", "contact_force"}  # a non-number output is skipped
     assert table[table["quantity"] == "err_u"]["n_fine"].tolist() == [8]

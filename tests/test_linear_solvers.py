@@ -39,7 +39,7 @@ def runs(tmp_path_factory):
 def test_every_linear_solver_gives_the_same_solution(runs):
     reference = read_state(runs["umfpack"].directory / "state.txt")
     for name, run in runs.items():
-        assert run.record["linear_solver"].startswith(LINEAR_SOLVERS[name][1] + " ")
+        assert run.record.linear_solver.startswith(LINEAR_SOLVERS[name][1] + " ")
         for mine, theirs in zip(read_state(run.directory / "state.txt"), reference):
             # Newton stops at a relative error of 1e-9 per field (newton.rtol); two solvers
             # may stop on either side of it.
@@ -60,5 +60,5 @@ def test_peak_memory_is_freefems_own_high_water_mark(runs):
     test process could not be below this process's own resident size."""
     harness_mb = resource.getrusage(resource.RUSAGE_SELF).ru_maxrss / 1024
     for run in runs.values():
-        assert run.record["peak_rss_source"] == "freefem VmHWM"
-        assert 5 < run.record["peak_rss_mb"] < min(harness_mb, 500)
+        assert run.record.peak_rss_source == "freefem VmHWM"
+        assert 5 < run.record.peak_rss_mb < min(harness_mb, 500)

@@ -5,7 +5,6 @@ a copy of the template is picked up by name."""
 
 from __future__ import annotations
 
-import json
 import re
 import shutil
 from pathlib import Path
@@ -13,6 +12,7 @@ from pathlib import Path
 import pytest
 
 from harness.cli import main
+from harness.record import RunRecord, read_run_json
 from harness.freefem import command, invoke
 
 ROOT = Path(__file__).parents[1]
@@ -55,11 +55,11 @@ def runs(tmp_path_factory):
     results = tmp_path_factory.mktemp("materials")
     cache: dict[str, dict] = {}
 
-    def record(material: str) -> dict:
+    def record(material: str) -> RunRecord:
         if material not in cache:
             code, directory = solve(results, material)
             assert code == 0, f"{material}: the paper's scene failed (see {directory}.failed)"
-            cache[material] = json.loads((directory / "run.json").read_text())
+            cache[material] = read_run_json(directory)
         return cache[material]
 
     return record
@@ -107,15 +107,15 @@ def test_every_material_passes_the_checks(material, tmp_path):
 @pytest.mark.parametrize("material", MATERIALS)
 def test_every_material_runs_the_papers_scene_and_converges(material, runs):
     record = runs(material)
-    assert record["converged"] is True
-    assert record["material"] == material  # materialName matches the file name
+    assert record.converged is True
+    assert record.material == material  # materialName matches the file name
 
 
 @pytest.mark.parametrize("material", [m for m in MATERIALS if m != "BaTiO3"])
 def test_changing_the_material_changes_the_solution(material, runs):
     # 1 %: the materials' moduli differ by tens of per cent, round-off by 1e-12.
     paper, other = runs("BaTiO3"), runs(material)
-    changes = [abs(other[k] / paper[k] - 1) for k in ("max_abs_u", "min_phi")]
+    changes = [abs(getattr(other, k) / getattr(paper, k) - 1) for k in ("max_abs_u", "min_phi")]
     assert max(changes) > 0.01, changes
 
 
@@ -178,8 +178,8 @@ def test_a_copy_of_the_template_is_picked_up_by_name(tmp_path, capsys):
     (tree / "materials" / "MyCeramic.idp").write_text(text)
     code, directory = solve(tmp_path / "results", "MyCeramic", tree)
     assert code == 0, capsys.readouterr().err
-    record = json.loads((directory / "run.json").read_text())
-    assert record["material"] == "MyCeramic" and record["converged"] is True
+    record = read_run_json(directory)
+    assert record.material == "MyCeramic" and record.converged is True
 
 
 def test_the_template_is_not_a_material():

@@ -21,7 +21,7 @@ from harness.layout import REPO, Layout
 from harness.mms import MACROS, X, Y, derive, fe_errors, macros, material_constants, numeric, parse_exact
 from harness.scene import load_scene
 from harness.script import main_script
-from harness.verify import BANDS, MMS_CASES, mms_errors, mms_rates
+from harness.studies.verify import BANDS, MMS_CASES, mms_errors, mms_rates
 
 COMMITTED = REPO / "results" / "verification" / "mms_levels.csv"
 
@@ -120,18 +120,18 @@ def test_every_coupling_term_is_of_the_order_of_the_others(derived):
 def test_the_contact_case_visits_every_branch_of_the_contact_laws(contact_scene):
     """On Gamma_3 = [1,3]x{0}: open and penetrating, slipping and sticking, conductances at
     zero, on the ramp and saturated, potential truncated and not."""
-    t = contact_scene.table
+    t = contact_scene.sections
     exact = numeric({k: v for k, v in vars(parse_exact(contact_scene.manufactured)).items()})
     x = np.linspace(1, 3, 2001)
     y = np.zeros_like(x)
-    s = -exact["u2"](x, y) - t["contact"]["gap"]
-    shear = t["contact"]["c_nu"] * np.abs(exact["u1"](x, y))
+    s = -exact["u2"](x, y) - t.contact.gap
+    shear = t.contact.c_nu * np.abs(exact["u1"](x, y))
     assert (s < 0).any() and (s > 0).any()
-    assert (shear > t["contact"]["S"]).any() and (shear < t["contact"]["S"]).any()
-    for eps in (t["electric_contact"]["eps_e"], t["thermal_contact"]["eps_c"]):
+    assert (shear > t.contact.S).any() and (shear < t.contact.S).any()
+    for eps in (t.electric_contact.eps_e, t.thermal_contact.eps_c):
         assert ((s > 0) & (s < eps)).any() and (s > eps).any()
-    drop = np.abs(exact["phi"](x, y) - t["electric_contact"]["phi_f"])
-    assert (drop > t["electric_contact"]["L"]).any() and (drop < t["electric_contact"]["L"]).any()
+    drop = np.abs(exact["phi"](x, y) - t.electric_contact.phi_f)
+    assert (drop > t.electric_contact.L).any() and (drop < t.electric_contact.L).any()
 
 
 def test_switched_off_effects_remove_their_field_or_coupling(contact_scene):

@@ -12,9 +12,9 @@ import numpy as np
 from harness.fields import read_state
 from harness.layout import Layout
 from harness.mesh import build_mesh
-from harness.run import WarmStart, run_level
+from harness.run import run_level
 from harness.scene import load_scene
-from harness.study import run_chain
+from harness.engine import run_chain, runs_of
 
 CASE = Path(__file__).parents[1] / "cases" / "paper.toml"
 RTOL = 1e-9
@@ -25,18 +25,18 @@ def test_the_contraction_stop_is_as_accurate_as_rtol_promises(tmp_path):
     layout = Layout(results=tmp_path)
     levels = (2, 4, 8, 16)
     meshes = {n: build_mesh(scene.geometry, n, layout.meshes_dir(scene.name)).path for n in levels}
-    runs = run_chain(scene, meshes, layout, False, lambda s: None)
+    runs = runs_of(run_chain(scene, meshes, layout, False, lambda s: None))
     stopped = runs[16].record
-    last = stopped["newton_iterations"]
-    increments, estimates = stopped["increments"], stopped["error_estimates"]
+    last = stopped.newton_iterations
+    increments, estimates = stopped.increments, stopped.error_estimates
     # This level is accepted on the estimate: its last increment alone would not pass.
     assert max(increments[f][last] for f in increments) > RTOL
     assert max(estimates[f][last] for f in estimates) <= RTOL
 
     tight = load_scene(CASE, ["newton.rtol=1e-12", 'scene.name="tight"'])
-    warm = WarmStart(meshes[8], runs[8].directory / "state.txt")
+    warm = runs[8].warm_start(meshes[8])
     exact = run_level(tight, meshes[16], 16, layout, warm=warm)
-    assert exact.record["newton_iterations"] > last
+    assert exact.record.newton_iterations > last
     for mine, converged in zip(read_state(runs[16].directory / "state.txt"),
                                read_state(exact.directory / "state.txt")):
         scale = np.abs(converged).max()

@@ -48,11 +48,11 @@ def test_heat_conduction_matches_the_analytic_series_at_second_order(tmp_path):
 def test_uniform_pressure_is_carried_by_contact_with_penetration_load_over_penalty(tmp_path):
     """(b) A free block under a uniform 100 N/m^2: contact force = load, penetration = p/c_nu."""
     run = solve(DATA / "block.toml", 8, tmp_path)
-    assert run.record["converged"]
+    assert run.record.converged
     load = 100.0 * 2.0
     # Vertical equilibrium of the discrete problem is exact (v = (0, 1) is a test function)
     # up to Newton's final residual, ~1e-15 of the initial one, i.e. ~1e-8 N/m here.
-    assert run.record["contact_force"] == pytest.approx(load, rel=1e-7)
+    assert run.record.contact_force == pytest.approx(load, rel=1e-7)
     bottom = np.isclose(run.fields.points[:, 1], 0.0)
     penetration = -run.fields.field("u")[bottom, 1]
     # Not exact: the tangential penalty (c_nu = 1e7) restrains the Poisson expansion of the
@@ -63,10 +63,10 @@ def test_uniform_pressure_is_carried_by_contact_with_penetration_load_over_penal
 def test_tangential_load_below_the_bound_sticks_and_is_carried_by_friction(tmp_path):
     """(c) Shear 4.25 N/m^2 < S = 8.5 on the free block: no node slips; friction = load."""
     run = solve(DATA / "block.toml", 8, tmp_path, "loads.traction_x=4.25", "contact.S=8.5")
-    assert run.record["converged"]
-    assert run.record["slip_nodes"][-1] == 0
+    assert run.record.converged
+    assert run.record.slip_nodes[-1] == 0
     # Horizontal equilibrium holds like the vertical one (b), to Newton's final residual.
-    assert run.record["friction_force"] == pytest.approx(4.25 * 2.0, rel=1e-7)
+    assert run.record.friction_force == pytest.approx(4.25 * 2.0, rel=1e-7)
 
 
 def test_tangential_load_above_the_bound_slips_with_shear_equal_to_the_bound(tmp_path):
@@ -74,18 +74,18 @@ def test_tangential_load_above_the_bound_slips_with_shear_equal_to_the_bound(tmp
     the tangential penalty force c_nu |u_tau| exceeds S on most of Gamma_3; there the
     contact carries exactly |sigma_tau| = S against the slip, elsewhere less."""
     run = solve(CASES / "paper.toml", 8, tmp_path, "loads.traction_x=100", "contact.S=1e-3")
-    assert run.record["converged"]
+    assert run.record.converged
     pts = run.fields.points
     on_contact = np.isclose(pts[:, 1], 0.0) & (pts[:, 0] >= 1.0) & (pts[:, 0] <= 3.0)
     u_tau = run.fields.field("u")[on_contact, 0]        # tau = (1, 0) for nu = (0, -1)
     shear = run.fields.field("contact_shear")[on_contact]
     slipping = 1e7 * np.abs(u_tau) >= 1e-3
     assert slipping.sum() >= 0.75 * on_contact.sum()    # the premise: this load slips
-    assert run.record["slip_nodes"][-1] == slipping.sum()
+    assert run.record.slip_nodes[-1] == slipping.sum()
     # Projection on the ball: exactly S (round-off) and along the slip on slipping nodes.
     np.testing.assert_allclose(shear[slipping], 1e-3 * np.sign(u_tau[slipping]), rtol=1e-12)
     assert np.all(np.abs(shear[~slipping]) < 1e-3)
-    assert abs(run.record["friction_force"]) <= 1e-3 * 2.0
+    assert abs(run.record.friction_force) <= 1e-3 * 2.0
 
 
 def test_mirrored_mesh_gives_the_mirror_image(tmp_path):
@@ -93,7 +93,7 @@ def test_mirrored_mesh_gives_the_mirror_image(tmp_path):
     mirror of the default one, so its solution is the mirror image of the default's."""
     default = solve(CASES / "paper.toml", 16, tmp_path / "a")
     mirrored = solve(CASES / "paper.toml", 16, tmp_path / "b", "geometry.diagonals=NW-SE")
-    assert default.record["converged"] and mirrored.record["converged"]
+    assert default.record.converged and mirrored.record.converged
     pa, pb = default.fields.points, mirrored.fields.points
     # Map every node (x, y) of the default mesh to the node (4 - x, y) of the mirrored one.
     key = {(round(x * 16), round(y * 16)): i for i, (x, y) in enumerate(pb)}

@@ -16,7 +16,7 @@ from harness.fields import read_state
 from harness.layout import Layout
 from harness.mesh import build_mesh
 from harness.scene import load_scene
-from harness.study import run_chain
+from harness.engine import run_chain, runs_of
 
 CASE = Path(__file__).parents[1] / "cases" / "paper.toml"
 LEVELS = (2, 4, 8)
@@ -26,7 +26,7 @@ def chain(root: Path, pipelined: bool, *overrides: str):
     scene = load_scene(CASE, list(overrides))
     layout = Layout(results=root)
     meshes = {n: build_mesh(scene.geometry, n, layout.meshes_dir(scene.name)).path for n in LEVELS}
-    return layout, run_chain(scene, meshes, layout, False, lambda s: None, pipelined=pipelined)
+    return layout, runs_of(run_chain(scene, meshes, layout, False, lambda s: None, pipelined=pipelined))
 
 
 def test_a_pipelined_chain_gives_the_same_solutions_as_one_level_at_a_time(tmp_path):
@@ -36,13 +36,13 @@ def test_a_pipelined_chain_gives_the_same_solutions_as_one_level_at_a_time(tmp_p
         for a, b in zip(read_state(piped[n].directory / "state.txt"), read_state(single[n].directory / "state.txt")):
             # The same computation on the same data: only the way the state path arrives differs.
             np.testing.assert_allclose(a, b, rtol=0, atol=1e-12 * np.abs(b).max())
-        assert piped[n].record["newton_iterations"] == single[n].record["newton_iterations"]
+        assert piped[n].record.newton_iterations == single[n].record.newton_iterations
     for n in LEVELS[1:]:
         record = piped[n].record
-        assert record["pipelined"] is True and record["waited_s"] >= 0 and record["wall_s"] > 0
-        assert record["ready_s"] > 0  # FreeFEM got to the wait: bulk assembled before the state came
-        assert "pipelined" not in single[n].record and single[n].record["ready_s"] == -1
-    assert "pipelined" not in piped[LEVELS[0]].record  # the coarsest level has nobody to wait for
+        assert record.pipelined is True and record.waited_s >= 0 and record.wall_s > 0
+        assert record.ready_s > 0  # FreeFEM got to the wait: bulk assembled before the state came
+        assert single[n].record.pipelined is None and single[n].record.ready_s == -1
+    assert piped[LEVELS[0]].record.pipelined is None  # the coarsest level has nobody to wait for
 
 
 def freefem_processes_under(root: Path) -> list[int]:

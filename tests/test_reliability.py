@@ -19,7 +19,7 @@ from typing import Iterator
 
 import pytest
 
-from harness import atomic, cache, guards, stress
+from harness import atomic, cache, checks, guards
 from harness.cli import main
 from harness.layout import REPO, Layout
 
@@ -160,7 +160,9 @@ def test_ctrl_c_during_start_up_is_one_line(tmp_path):
     proc.send_signal(signal.SIGINT)
     _, err = proc.communicate(timeout=30)
     assert proc.returncode == 130
-    one_error(err.decode().strip().splitlines(), "interrupted by SIGINT during start-up")
+    # Usually still importing ("... during start-up"); on a loaded machine the imports can
+    # finish between the check above and the signal: the same one line, without the phrase.
+    one_error(err.decode().strip().splitlines(), "interrupted by SIGINT")
 
 
 # ---- 2: environment faults exit 4 with one line -------------------------------------------
@@ -219,7 +221,9 @@ def test_a_full_disk_while_freefem_writes_its_outputs(capsys, tmp_path):
     with mounted_tmpfs(tmp_path / "full", "size=64k") as disk:
         code, err, _ = run(capsys, disk / "results", "solve", str(PAPER), "--n", "8", freefem=REPO / "freefem")
         assert code == 4
-        one_error(err, "no space left on the device for the outputs of paper n=")
+        # Which write meets the full disk first (a level's outputs, or a finer level's mesh
+        # built meanwhile in the background) depends on timing: either is the same fault.
+        one_error(err, "no space left on the device for the ")
         assert not list((disk / "results" / "paper").glob(".tmp-*"))
 
 
@@ -410,18 +414,19 @@ def test_solve_prints_the_checks_and_a_failed_check_exits_1(capsys, tmp_path, mo
     tolerance made impossible (monkeypatched), the command fails with the verdict code."""
     code, err, out = run(capsys, tmp_path, "solve", str(PAPER), "--n", "2", freefem=REPO / "freefem")
     assert code == 0 and "checks n=2: pass" in out, err
-    monkeypatch.setitem(stress.TOLERANCES, "charge", (-1.0, "impossible, for the test"))
+    monkeypatch.setitem(checks.TOLERANCES, "charge", (-1.0, "impossible, for the test"))
     code, err, out = run(capsys, tmp_path, "solve", str(PAPER), "--n", "2", freefem=REPO / "freefem")
     assert code == 1 and "checks n=2: FAIL charge" in out
     one_error(err, "physical checks failed at n = 2", "charge")
 
 
 def test_a_check_the_solver_does_not_report_is_missing_not_failed(tmp_path):
+    from harness.record import RunRecord
     from harness.run import RunResult
     from harness.run_checks import check_run
     from harness.scene import load_scene
 
-    record = {"n": 2, "checks": {"force_imbalance": 0.0, "force_residual_bound": 1.0}}
+    record = RunRecord(n=2, checks={"force_imbalance": 0.0, "force_residual_bound": 1.0})
     checked = check_run(load_scene(PAPER), RunResult(2, tmp_path, record, reused=True))
     assert checked.passed and checked.line == ("checks n=2: pass (force); not reported: sigma_nu, sigma_tau, "
                                                "open_flux, heat, charge")

@@ -27,7 +27,7 @@ def test_the_paper_case_loads_with_its_values(paper_case):
     assert scene.levels == (2, 4, 8, 16, 32, 64)
     assert scene.slope_band == (0.8, 1.3)
     assert scene.timeout_s == 600.0
-    assert math.isinf(scene.table["electric_contact"]["L"])
+    assert math.isinf(scene.sections.electric_contact.L)
     assert scene.geometry.role_lengths() == {"clamped": 2.0, "loaded": 2.0, "free": 4.0, "contact": 2.0}
     assert scene.geometry.breakpoints() == (0.0, 1.0, 3.0, 4.0)
 
@@ -59,7 +59,7 @@ def test_optional_keys_take_their_defaults(paper_case, tmp_path):
 )
 def test_overrides_replace_values_parsed_as_toml(paper_case, override, expected):
     section, key, value = expected
-    assert load_scene(paper_case, [override]).table[section][key] == value
+    assert getattr(getattr(load_scene(paper_case, [override]).sections, section), key) == value
 
 
 def test_override_values_fall_back_to_bare_strings():

@@ -11,8 +11,11 @@ import math
 import numpy as np
 import pytest
 
-from harness import stress
+from harness.studies import stress
+from harness.contract import Failure
 from harness.errors import RunError
+from harness.record import RunRecord, read_run_json
+from harness.run import read_record
 from harness.fields import read_fields
 from harness.layout import Layout
 from harness.scene import load_scene
@@ -20,10 +23,6 @@ from harness.scene import load_scene
 CASES = sorted(stress.HARD.glob("*.toml"))
 COARSE = 8  # levels up to h = 1/8: the whole suite runs in a few seconds
 
-# Newton iterations per level measured at levels 2, 4, 8 (chains from the coarser level);
-# the bound is that plus 3. The default covers every case not listed (measured <= 7).
-MEASURED_ITERATIONS = {"gap_partial": 18, "unstructured": 9}
-DEFAULT_ITERATIONS = 7
 
 
 @pytest.fixture(scope="module")
@@ -40,11 +39,12 @@ def suite(tmp_path_factory) -> dict[str, tuple[stress.CaseResult, dict]]:
 def test_every_case_says_why_it_is_hard_and_known_failures_name_real_cases():
     assert len(CASES) >= 20
     for case in CASES:
-        assert len(stress.hard_because(case)) > 20, case
+        expect = load_scene(case).expect
+        assert len(expect.hard_because) > 20, case
+        assert len(expect.requirement) > 20 and expect.max_newton_iterations_why, case
         assert load_scene(case).name == case.stem  # results/stress/<case>/ is the case's own
-    assert set(stress.KNOWN_FAILURES) <= {c.stem for c in CASES}
-    for reason, why in stress.KNOWN_FAILURES.values():
-        assert reason in stress.STATUSES and why
+        if expect.status == "known_failure":
+            assert expect.failure in stress.STATUSES and expect.why
 
 
 def test_the_suite_covers_the_issue_list():
@@ -70,11 +70,11 @@ def test_the_suite_covers_the_issue_list():
 @pytest.mark.parametrize("case", [c.stem for c in CASES])
 def test_case_converges_with_its_checks_or_fails_as_known(suite, case):
     result, row = suite[case]
-    if case in stress.KNOWN_FAILURES:
-        reason, _ = stress.KNOWN_FAILURES[case]
+    expect = result.scene.expect
+    if expect.status == "known_failure":
         # Still failing, and for the listed reason: a fix (or a new way to fail) shows here.
         assert row["status"] == "known_failure", row["note"]
-        assert result.last.status == reason
+        assert result.last.status == expect.failure
         return
     assert row["status"] == "converged", row["note"]
     assert row["note"] == ""
@@ -82,15 +82,15 @@ def test_case_converges_with_its_checks_or_fails_as_known(suite, case):
     assert not failed, (failed, {k: row.get(k) for k in (
         "force_imbalance", "force_residual_bound", "max_sigma_nu", "sigma_nu_scale", "sigma_tau_excess", "heat_imbalance",
         "charge_imbalance", "heat_flux_open_error", "charge_flux_open_error")})
-    bound = MEASURED_ITERATIONS.get(case, DEFAULT_ITERATIONS) + 3
-    assert all(run.record["newton_iterations"] <= bound for run in result.levels), row["iterations_per_level"]
+    bound = expect.max_newton_iterations  # its why: the case file's max_newton_iterations_why
+    assert all(run.record.newton_iterations <= bound for run in result.levels), row["iterations_per_level"]
 
 
 def gamma3(result: stress.CaseResult):
     """Fields on Gamma_3 at the finest level run: x, penetration s, phi (or None)."""
     fields = read_fields(result.last.directory / "solution.vtu")
     nodes = np.concatenate(stress.contact_nodes(result.scene, fields))
-    s = -fields.field("u")[nodes, 1] - result.scene.table["contact"]["gap"]
+    s = -fields.field("u")[nodes, 1] - result.scene.sections.contact.gap
     phi = fields.field("phi")[nodes] if "phi" in fields.values else None
     return fields.points[nodes, 0], s, phi
 
@@ -110,18 +110,18 @@ def test_each_case_is_hard_the_way_its_header_says(suite):
     assert row("friction_free")["slip_nodes"] == row("friction_free")["gamma3_nodes"]
     # Gap: never closes / closes on part of Gamma_3 only; lift-off: nothing touches.
     for case in ("gap_open", "lift_off"):
-        assert last(case)["contact_force"] == 0 and row(case)["active_nodes"] == 0
+        assert last(case).contact_force == 0 and row(case)["active_nodes"] == 0
     _, s, _ = gamma3(suite["gap_partial"][0])
     assert (s > 0).any() and (s <= 0).any()
     # Truncation: |phi - phi_f| > L at some node of Gamma_3.
-    table = suite["truncation_active"][0].scene.table["electric_contact"]
+    electric = suite["truncation_active"][0].scene.sections.electric_contact
     _, _, phi = gamma3(suite["truncation_active"][0])
-    assert np.abs(phi - table["phi_f"]).max() > table["L"]
+    assert np.abs(phi - electric.phi_f).max() > electric.L
     # Penetration against eps: from zero every solution stays on the conductance ramp
     # (0 < s < eps somewhere), even with eps = 1e-12; from the pressed start with eps = 1e-12
     # the conductances are saturated everywhere (a step).
     for case in ("eps_jump", "eps_large"):
-        eps = suite[case][0].scene.table["thermal_contact"]["eps_c"]
+        eps = suite[case][0].scene.sections.thermal_contact.eps_c
         _, s, _ = gamma3(suite[case][0])
         assert 0 < s.max() < eps
     _, s, _ = gamma3(suite["eps_jump_pressed"][0])
@@ -150,21 +150,48 @@ def test_paper_scene_iterations_do_not_grow_with_refinement(tmp_path):
     assert zero.max() <= 6
 
 
+# Cases whose zero start has no solution in reach, so that Newton restarts from the pressed
+# state (freefem/newton.idp) and ends on the pressed branch (docs/model.md section 6): the
+# foundation drives the contact further in, through phi_f > 0 (phi_plus) or thermal
+# expansion without the piezoelectric lift (no_piezo), or the shear tears it open
+# (friction_large_shear).
+PRESSED_FROM_ZERO = {"no_piezo", "no_piezo_pressed", "phi_plus", "phi_plus_pressed", "friction_large_shear",
+                     "friction_large_shear_pressed"}
+
+
+@pytest.mark.parametrize("case", [c.stem for c in CASES])
+def test_case_converges_from_zero(tmp_path, case):
+    """Issue 14, cold starts: every case at n = 2 from u = phi = theta = 0 converges with its
+    checks passing; the branch it ends on is the one listed above."""
+    scene = load_scene(stress.HARD / f"{case}.toml", ['scene.initial_guess="zero"'])
+    layout = Layout(results=tmp_path)
+    result = stress.run_case(stress.HARD / f"{case}.toml", layout, levels=[2], scene=scene)
+    row = stress.summary_row(result)
+    assert row["status"] == "converged", row["note"]
+    assert all(row[k] for k in stress.CHECK_FLAGS), {k: row[k] for k in stress.CHECK_FLAGS}
+    record = result.last.record
+    assert (record.restarted_at > 0) == (case in PRESSED_FROM_ZERO), record.restarted_at
+    assert record.newton_iterations <= 25
+
+
 # ---- the classification and the checks, without FreeFEM ----------------------------------
 
 @pytest.mark.parametrize("reason", ["diverged", "max_iterations", "nan"])
 def test_newton_failures_are_classified_from_run_json(tmp_path, reason):
     (tmp_path / "run.json").write_text(json.dumps({"reason": reason, "converged": False}))
-    status, record = stress.classify(RunError("x n=2: Newton ..."), tmp_path)
-    assert status == reason and record["reason"] == reason
+    record = read_record(tmp_path)
+    status = stress.classify(RunError("x n=2: Newton ...", Failure.OTHER).failure, record)
+    assert status == reason and record.reason == reason
 
 
 def test_a_timeout_and_a_freefem_error_are_classified_from_the_message(tmp_path):
-    assert stress.classify(RunError("x n=2: timed out after 5 s (process group killed)"), tmp_path)[0] == "timeout"
-    assert stress.classify(RunError("x n=2: FreeFEM compile error: ..."), tmp_path)[0] == "freefem_error"
+    timeout = RunError("x n=2: timed out after 5 s (process group killed)", Failure.TIMEOUT)
+    assert stress.classify(timeout.failure, read_record(tmp_path)) == "timeout"
+    compile_error = RunError("x n=2: FreeFEM compile error: ...", Failure.COMPILE)
+    assert stress.classify(compile_error.failure, read_record(tmp_path)) == "freefem_error"
 
 
-def paper_record(**checks) -> dict:
+def paper_record(**checks) -> RunRecord:
     base = {"applied_load": [0.0, -200.0], "force_imbalance": 1e-14, "max_sigma_nu": -1e-7,
             "min_sigma_nu": -3e-6, "max_abs_sigma_tau": 0.02, "S": 8.5, "heat_source": 0.0,
             "heat_out_dirichlet": 1e-4, "max_heat_flux_contact": 1e-4, "max_heat_flux_open": 0.0,
@@ -172,7 +199,7 @@ def paper_record(**checks) -> dict:
             "max_charge_flux_open": 0.0,
             # the paper's conductance laws at full contact, k_c |theta_f| and k_e |phi_f| (checks.idp)
             "natural_heat_flux": 373.0, "natural_charge_flux": 4.4}
-    return {"heat_in_contact": 1e-4, "charge_in_contact": -5e-7, "checks": {**base, **checks}}
+    return RunRecord(heat_in_contact=1e-4, charge_in_contact=-5e-7, checks={**base, **checks})
 
 
 @pytest.mark.parametrize("checks, flag", [
@@ -216,8 +243,8 @@ def test_open_node_fluxes_skip_the_theta_dirichlet_end_of_gamma3(tmp_path):
 
     assert main(["solve", str(stress.PAPER), "--n", "2", "--results", str(tmp_path),
                  "--set", "scene.name=g9", "--set", "contact.gap=1e-9"]) == 0
-    record = json.loads((tmp_path / "g9" / "n2" / "run.json").read_text())
-    c = record["checks"]
+    record = read_run_json(tmp_path / "g9" / "n2")
+    c = record.checks
     assert c["open_nodes"] > 0
     # An open node next to a closed one carries charge through the closed Gauss point.
     assert c["max_charge_flux_open_expected"] > 1e-9

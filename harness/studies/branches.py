@@ -1,4 +1,4 @@
-"""`python -m harness.branches` (`make branches`): the solution branches of the paper's scene
+"""`python -m harness branches` (`make branches`): the solution branches of the paper's scene
 (issue 4), into results/branches/.
 
 The benchmark's data break the paper's uniqueness condition, and Newton reaches different
@@ -16,7 +16,7 @@ cases/paper.toml (levels 2 ... 64):
 For each: the finest level's max theta, phi range, max |u|, contact force, heat and charge
 entering through Gamma_3 and the active length, the Newton iterations per level, the
 least-squares slope of each field's error against the finest level, and the stress suite's
-physical checks (harness/stress.py) on every level. A start that fails on
+physical checks (harness/checks.py) on every level. A start that fails on
 some level is reported with the level and the reason, not left out.
 Writes branches.csv, branches.md, and each study's convergence.csv / summary.json /
 convergence.png under results/branches/<start>/.
@@ -26,20 +26,18 @@ from __future__ import annotations
 
 import argparse
 import math
-import sys
-from pathlib import Path
 from typing import Any, Sequence
 
 import pandas as pd
 
-from harness.atomic import write_atomic
-from harness.errors import HarnessError, RunError
-from harness.cli import level_list
+from harness.arguments import add_common, add_jobs, add_levels, layout_of, name_list
+from harness.checks import CHECK_FLAGS, physical_checks
+from harness.errors import RunError, SceneError
 from harness.layout import REPO, Layout
 from harness.report import write_report
 from harness.scene import load_scene
-from harness.stress import CHECK_FLAGS, cell, physical_checks, write_table
 from harness.study import run_study
+from harness.writers import cell, write_csv, write_text
 
 PAPER = REPO / "cases" / "paper.toml"
 RESULTS = REPO / "results" / "branches"
@@ -59,7 +57,7 @@ FACTS = ("max_theta", "min_phi", "max_phi", "max_abs_u", "contact_force", "heat_
 def branch_row(start: str, levels: Sequence[int], layout: Layout, jobs: int, force: bool) -> dict[str, Any]:
     scene = load_scene(PAPER, [f"scene.name={start}", *STARTS[start]])
     row: dict[str, Any] = {"start": start, "initial_guess": scene.initial_guess,
-                           "coarsest_guess": scene.table["scene"]["coarsest_guess"]}
+                           "coarsest_guess": scene.sections.scene.coarsest_guess}
     try:
         study = run_study(scene, tuple(levels), layout, jobs, force)
     except RunError as exc:
@@ -67,8 +65,8 @@ def branch_row(start: str, levels: Sequence[int], layout: Layout, jobs: int, for
     write_report(study, layout)
     finest = study.runs[study.reference].record
     row.update({"status": "converged", "note": "", "n_finest": study.reference})
-    row.update({key: finest.get(key, math.nan) for key in FACTS})
-    row["newton_iterations"] = " ".join(str(study.runs[n].record.get("newton_iterations")) for n in sorted(study.runs))
+    row.update({key: finest.value(key) for key in FACTS})
+    row["newton_iterations"] = " ".join(str(study.runs[n].record.newton_iterations) for n in sorted(study.runs))
     for name, fits in study.slopes.items():
         row[f"slope_{name}"] = fits["all"]
     # The stress suite's physical checks on every level of the branch.
@@ -113,43 +111,24 @@ def markdown(table: pd.DataFrame) -> str:
     return "\n".join(lines) + "\n"
 
 
-def parser() -> argparse.ArgumentParser:
-    p = argparse.ArgumentParser(prog="python -m harness.branches", description=__doc__,
-                                formatter_class=argparse.RawDescriptionHelpFormatter)
-    p.add_argument("--levels", default=",".join(map(str, LEVELS)), help="levels n = 1/h, the finest the reference")
-    p.add_argument("--starts", default=",".join(STARTS), help=f"starts to run ({', '.join(STARTS)})")
-    p.add_argument("--jobs", type=int, default=2, help="parallel runs (the chains run level by level)")
-    p.add_argument("--force", action="store_true", help="rerun even if inputs are unchanged")
-    p.add_argument("--results", type=Path, default=RESULTS, help="where the studies and the table go")
-    p.add_argument("--freefem", type=Path, default=Layout().freefem, help="solver scripts")
-    return p
+def add_arguments(parser: argparse.ArgumentParser) -> None:
+    add_levels(parser, default=LEVELS, what="2,...,64; the finest the reference")
+    parser.add_argument("--starts", type=name_list, default=list(STARTS), help=f"starts to run ({', '.join(STARTS)})")
+    add_jobs(parser, default=2)
+    add_common(parser, results=RESULTS)
 
 
-def main(argv: Sequence[str] | None = None) -> int:
-    args = parser().parse_args(argv)
-    layout = Layout(results=args.results, freefem=args.freefem)
-    try:
-        levels = list(level_list(args.levels))
-        starts = [s.strip() for s in args.starts.split(",") if s.strip()]
-        unknown = [s for s in starts if s not in STARTS]
-        if unknown:
-            raise HarnessError(f"unknown start {unknown[0]!r} (known: {', '.join(STARTS)})")
-        rows = [branch_row(start, levels, layout, args.jobs, args.force) for start in starts]
-    except HarnessError as exc:
-        print(f"error: {exc}", file=sys.stderr)
-        return 2
+def run(args: argparse.Namespace) -> int:
+    layout = layout_of(args)
+    unknown = [s for s in args.starts if s not in STARTS]
+    if unknown:
+        raise SceneError(f"unknown start {unknown[0]!r} (known: {', '.join(STARTS)})")
+    rows = [branch_row(start, args.levels, layout, args.jobs, args.force) for start in args.starts]
     labels = same_branch(rows)
     for row in rows:
         row["branch"] = labels.get(row["start"], "")
     table = pd.DataFrame(rows)
-    args.results.mkdir(parents=True, exist_ok=True)
-    write_table(table, args.results / "branches.csv")
-    write_atomic(args.results / "branches.md", markdown(table))
+    write_csv(table, args.results / "branches.csv")
+    write_text(markdown(table), args.results / "branches.md")
     print(markdown(table))
     return 0
-
-
-if __name__ == "__main__":
-    from harness.faults import guarded  # signals, exit codes, one error line
-
-    sys.exit(guarded(main))

@@ -1,4 +1,4 @@
-"""`python -m harness.verify`: verification beyond self-convergence (issue 6), into
+"""`python -m harness verify`: verification beyond self-convergence (issue 6), into
 results/verification/.
 
 - Manufactured solutions (cases/mms/*.toml, harness/mms.py): true errors against the exact
@@ -20,15 +20,24 @@ from typing import Callable, Sequence
 import pandas as pd
 from matplotlib.figure import Figure
 
-from harness.errors import HarnessError, RunError
+from harness.arguments import add_common, add_jobs, add_levels, layout_of, name_list
+from harness.contract import ExitCode
+from harness.engine import InlineMeshes, runs_of, stderr_line, study_outcomes
+from harness.errors import RunError, SceneError
 from harness.freefem import freefem_version
 from harness.gci import three_grid
 from harness.layout import REPO, Layout
-from harness.mesh import build_mesh
 from harness.rates import slope_fit
+from harness.record import RunRecord
 from harness.run import check_solver_files
 from harness.scene import Scene, load_scene
-from harness.study import run_all, run_study, stderr_line
+from harness.study import run_study
+from harness.writers import PRECISE_CSV_FORMAT, write_csv as write_table
+
+
+def write_csv(table: pd.DataFrame, path: Path) -> None:
+    """Errors and orders at full precision: their slopes are fitted again."""
+    write_table(table, path, PRECISE_CSV_FORMAT)
 
 MMS_CASES = {"bulk": REPO / "cases" / "mms" / "bulk.toml", "contact": REPO / "cases" / "mms" / "contact.toml"}
 MMS_LEVELS = (4, 8, 16, 32)
@@ -59,11 +68,11 @@ def mms_errors(scene: Scene, levels: Sequence[int], layout: Layout, jobs: int = 
         raise RunError(f"{scene.source} has no [manufactured] solution")
     check_solver_files(scene, layout)
     freefem_version()
-    meshes = {n: build_mesh(scene.geometry, n, layout.meshes_dir(scene.name)).path for n in sorted(set(levels))}
-    runs = run_all(scene, meshes, layout, jobs, force, progress)
+    meshes = InlineMeshes(scene, levels, layout).made()
+    runs = runs_of(study_outcomes(scene, meshes, layout, jobs, force, progress))
     rows = []
     for n, run in sorted(runs.items()):
-        errors, norms = run.record.get("mms_errors"), run.record.get("mms_norms")
+        errors, norms = run.record.mms_errors, run.record.mms_norms
         if not isinstance(errors, dict) or not isinstance(norms, dict):
             raise RunError(f"{run.directory}/run.json has no mms_errors/mms_norms: the scheme did not "
                            "run the manufactured solution (freefem/mms.idp, IFMACRO(MMS))")
@@ -71,7 +80,7 @@ def mms_errors(scene: Scene, levels: Sequence[int], layout: Layout, jobs: int = 
             for norm in EXPECTED:
                 rows.append({"n": n, "h": 1.0 / n, "field": field, "norm": norm,
                              "error": float(errors[field][norm]), "exact_norm": float(norms[field][norm]),
-                             "newton_iterations": run.record.get("newton_iterations")})
+                             "newton_iterations": run.record.newton_iterations})
     table = pd.DataFrame(rows)
     table["relative_error"] = table["error"] / table["exact_norm"]
     return table
@@ -120,7 +129,7 @@ def plot_mms(errors: pd.DataFrame, rates: pd.DataFrame, target: Path) -> None:
     fig.savefig(target, format="png", dpi=120)
 
 
-def gci_table(errors: pd.DataFrame, records: dict[int, dict]) -> pd.DataFrame:
+def gci_table(errors: pd.DataFrame, records: dict[int, RunRecord]) -> pd.DataFrame:
     """Every consecutive triple of levels, for each field's error norm (`errors`: a study's
     table, n and err_<field>, blank at the reference) and each scalar output of the runs'
     run.json (`records`, by level)."""
@@ -129,7 +138,7 @@ def gci_table(errors: pd.DataFrame, records: dict[int, dict]) -> pd.DataFrame:
         graded = errors[errors[column].notna()]
         series[column] = dict(zip(graded["n"].astype(int), graded[column].astype(float)))
     for name in GCI_OUTPUTS:
-        values = {n: record.get(name) for n, record in records.items()}
+        values = {n: getattr(record, name) for n, record in records.items()}
         if values and all(isinstance(v, (int, float)) and not isinstance(v, bool) for v in values.values()):
             series[name] = {n: float(v) for n, v in values.items()}
     rows = []
@@ -146,33 +155,21 @@ def finest_triples(table: pd.DataFrame) -> pd.DataFrame:
     return table.loc[table.groupby("quantity", sort=False)["n_fine"].idxmax()].reset_index(drop=True)
 
 
-def write_csv(table: pd.DataFrame, path: Path) -> None:
-    path.parent.mkdir(parents=True, exist_ok=True)
-    tmp = path.with_name(f".{path.name}.tmp")
-    tmp.write_text(table.to_csv(index=False, float_format="%.10g"))
-    tmp.replace(path)
-
-
-def parser() -> argparse.ArgumentParser:
-    p = argparse.ArgumentParser(prog="python -m harness.verify", description=__doc__,
-                                formatter_class=argparse.RawDescriptionHelpFormatter)
-    p.add_argument("--levels", default=",".join(map(str, MMS_LEVELS)), help="MMS levels n = 1/h")
-    p.add_argument("--cases", default=",".join([*MMS_CASES, *MMS_CASES_3D]),
-                   help="manufactured cases to run (bulk, contact, bulk3d, contact3d; empty: none)")
-    p.add_argument("--paper", type=Path, default=REPO / "cases" / "paper.toml", help="scene of the GCI table")
-    p.add_argument("--skip-gci", action="store_true", help="manufactured solutions only")
-    p.add_argument("--jobs", type=int, default=2, help="parallel runs")
-    p.add_argument("--force", action="store_true", help="rerun even if inputs are unchanged")
-    p.add_argument("--results", type=Path, default=Layout().results, help="results root")
-    p.add_argument("--freefem", type=Path, default=Layout().freefem, help="solver scripts")
-    return p
+def add_arguments(parser: argparse.ArgumentParser) -> None:
+    add_levels(parser, default=MMS_LEVELS, what="4,8,16,32; the manufactured cases'")
+    parser.add_argument("--cases", type=name_list, default=[*MMS_CASES, *MMS_CASES_3D],
+                        help="manufactured cases to run (bulk, contact, bulk3d, contact3d; empty: none)")
+    parser.add_argument("--paper", type=Path, default=REPO / "cases" / "paper.toml", help="scene of the GCI table")
+    parser.add_argument("--skip-gci", action="store_true", help="manufactured solutions only")
+    add_jobs(parser, default=2)
+    add_common(parser)
 
 
 def verify_mms(cases: Sequence[str], levels: Sequence[int], layout: Layout, jobs: int, force: bool) -> pd.DataFrame:
     known = {**MMS_CASES, **MMS_CASES_3D}
     unknown = [c for c in cases if c not in known]
     if unknown:
-        raise RunError(f"no manufactured case {unknown[0]!r} (known: {', '.join(known)})")
+        raise SceneError(f"no manufactured case {unknown[0]!r} (known: {', '.join(known)})")
     tables = [mms_errors(load_scene(known[c]), levels if c in MMS_CASES else MMS_LEVELS_3D, layout, jobs, force)
               .assign(case=c) for c in cases]
     errors = pd.concat(tables, ignore_index=True)
@@ -197,28 +194,15 @@ def verify_gci(case: Path, layout: Layout, jobs: int, force: bool) -> pd.DataFra
     return gci
 
 
-def main(argv: Sequence[str] | None = None) -> int:
-    """Exit 0, 1 when a manufactured slope leaves its band (BANDS), 2 on an error."""
-    args = parser().parse_args(argv)
-    layout = Layout(results=args.results, freefem=args.freefem)
-    cases = [c for c in args.cases.split(",") if c]
-    try:
-        levels = tuple(int(n) for n in args.levels.split(","))
-        rates = verify_mms(cases, levels, layout, args.jobs, args.force) if cases else pd.DataFrame()
-        if not args.skip_gci:
-            verify_gci(args.paper, layout, args.jobs, args.force)
-    except (HarnessError, ValueError) as exc:
-        print(f"error: {exc}", file=sys.stderr)
-        return 2
+def run(args: argparse.Namespace) -> int:
+    """Exit 0, 1 when a manufactured slope leaves its band (BANDS)."""
+    layout = layout_of(args)
+    rates = verify_mms(args.cases, args.levels, layout, args.jobs, args.force) if args.cases else pd.DataFrame()
+    if not args.skip_gci:
+        verify_gci(args.paper, layout, args.jobs, args.force)
     outside = rates[~rates["within_band"]] if len(rates) else rates
     for _, row in outside.iterrows():
         low, high = band(row["case"], row["norm"])
         print(f"error: {row['case']} {row['field']} {row['norm']}: slope {row['slope']:.3f} is outside "
               f"[{low}, {high}]", file=sys.stderr)
-    return 1 if len(outside) else 0
-
-
-if __name__ == "__main__":
-    from harness.faults import guarded  # signals, exit codes, one error line
-
-    sys.exit(guarded(main))
+    return int(ExitCode.VERDICT) if len(outside) else 0

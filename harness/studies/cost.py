@@ -1,6 +1,6 @@
 """What accuracy costs in time (issue 5): the cost-accuracy frontier of a scene.
 
-    python -m harness.cost cases/paper.toml [--levels 2,4,...] [--reference P2:64]
+    python -m harness cost cases/paper.toml [--levels 2,4,...] [--reference P2:64]
         [--discretisations P1,P2,P1-rtol] [--scaling-levels 128,256] [--set k=v]
         [--results results/cost] [--force]
 
@@ -32,10 +32,6 @@ import argparse
 import json
 import math
 import os
-import statistics
-import sys
-import tempfile
-import time
 from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Any, Callable, Sequence
@@ -45,14 +41,15 @@ import pandas as pd
 from matplotlib.figure import Figure
 
 from harness import freefem
-from harness.atomic import write_atomic
-from harness.errors import HarnessError, RunError
+from harness.arguments import add_case, add_common, add_levels, level_list, name_list
+from harness.engine import InlineMeshes, freefem_startup_s, quiet, run_chain, runs_of, stderr_line, timed_meshes
+from harness.errors import SceneError
 from harness.layout import REPO, Layout
-from harness.mesh import build_mesh
 from harness.rates import slope_fit
-from harness.run import RunResult, WarmStart, check_solver_files, run_level
+from harness.record import RunRecord
+from harness.run import RunResult, check_solver_files
 from harness.scene import Scene, load_scene
-from harness.study import run_chain, stderr_line
+from harness.writers import write_csv, write_json, write_text, write_with
 
 FIELDS = ("u", "phi", "theta")
 ERROR_NAMES = (*FIELDS, "total")
@@ -85,61 +82,6 @@ DISCRETISATIONS = {
         "P1 on a mesh graded towards the ends of Gamma_3 (x -> 1, 3 and y -> 0, power 1.5)", grading=1.5,
     ),
 }
-
-
-# ---------------------------------------------------------------- graded meshes
-
-
-def graded_coordinate(t: np.ndarray, focus: Sequence[float], power: float) -> np.ndarray:
-    """A monotone map of [a, b] onto itself that fixes the focus points and the breakpoints
-    between them and packs the lattice towards the focus points: on a segment from a focus
-    point f to the next breakpoint or focus point g (half-way between two focus points),
-    s = (t - f)/(g - f) becomes s^power: cells of size ~h^power at the focus against
-    power * h far from it (an r^(1/2) singularity asks for power >= 2 with P1, which
-    coarsens the rest of the mesh too much here: see README, Cost)."""
-    out = t.astype(float).copy()
-    points = sorted(focus)
-    for i, f in enumerate(points):
-        left = (points[i - 1] + f) / 2 if i > 0 else None
-        right = (f + points[i + 1]) / 2 if i + 1 < len(points) else None
-        lo = left if left is not None else -np.inf
-        hi = right if right is not None else np.inf
-        for end in (lo, hi):
-            if not np.isfinite(end):
-                end = t.min() if end < 0 else t.max()
-            span = end - f
-            if span == 0:
-                continue
-            mask = (t - f) / span >= 0
-            mask &= (t >= min(f, end)) & (t <= max(f, end))
-            out[mask] = f + span * ((t[mask] - f) / span) ** power
-    return out
-
-
-def graded_msh(uniform: Path, target: Path, width: float, focus_x: Sequence[float], power: float) -> None:
-    """Copy a structured MSH 2.2 mesh with its nodes moved by graded_coordinate in x
-    (towards focus_x) and in y (towards y = 0). The topology, labels and orientation (both
-    maps are increasing) are unchanged; the family is no longer nested."""
-    lines = uniform.read_text().splitlines()
-    start = lines.index("$Nodes") + 2
-    count = int(lines[start - 1])
-    rows = [line.split() for line in lines[start:start + count]]
-    xy = np.array([[float(r[1]), float(r[2])] for r in rows])
-    gx = graded_coordinate(np.clip(xy[:, 0], 0, width), focus_x, power)
-    gy = graded_coordinate(xy[:, 1], [0.0], power)
-    for i, r in enumerate(rows):
-        lines[start + i] = f"{r[0]} {float(gx[i])!r} {float(gy[i])!r} {r[3]}"
-    target.parent.mkdir(parents=True, exist_ok=True)
-    write_atomic(target, "\n".join(lines) + "\n")
-
-
-def contact_ends(scene: Scene) -> list[float]:
-    """The x of the ends of the contact segments on the bottom (the ends of Gamma_3)."""
-    ends = set()
-    for seg in scene.table["geometry"]["bottom"]:
-        if seg[2] == "contact":
-            ends |= {float(seg[0]), float(seg[1])}
-    return sorted(ends)
 
 
 # ---------------------------------------------------------------- fits and the frontier
@@ -259,35 +201,6 @@ def cheapest(frontier: pd.DataFrame) -> dict[str, dict[str, str]]:
 # ---------------------------------------------------------------- running
 
 
-def timed_meshes(
-    scene: Scene, levels: Sequence[int], layout: Layout, grading: float = 1.0
-) -> tuple[dict[int, Path], dict[int, float]]:
-    paths, seconds = {}, {}
-    for n in sorted(levels):
-        start = time.perf_counter()
-        paths[n] = build_mesh(scene.geometry, n, layout.meshes_dir(scene.name)).path
-        if grading != 1.0:
-            graded = paths[n].with_name(f"graded_n{n}.msh")
-            graded_msh(paths[n], graded, scene.table["geometry"]["width"], contact_ends(scene), grading)
-            paths[n] = graded
-        seconds[n] = time.perf_counter() - start
-    return paths, seconds
-
-
-def freefem_startup_s(repeats: int = 5) -> float:
-    """Median wall time of FreeFEM running an empty script, as the harness invokes it."""
-    times = []
-    with tempfile.TemporaryDirectory(prefix="ff-startup-") as tmp:
-        script = Path(tmp) / "empty.edp"
-        script.write_text("real nothing = 0;\n")
-        for _ in range(repeats):
-            outcome = freefem.invoke(freefem.command(script, []), Path(tmp), timeout_s=60)
-            if outcome.returncode != 0:
-                raise RunError(f"FreeFEM does not run an empty script (exit code {outcome.returncode})")
-            times.append(outcome.wall_s)
-    return statistics.median(times)
-
-
 @dataclass
 class CostStudy:
     scene: str
@@ -306,35 +219,35 @@ def row_of(
     finer_than_reference: bool = False,
 ) -> dict[str, Any]:
     r = run.record
-    reference_s = float(r.get("reference_s", 0.0))
-    errors = {} if finer_than_reference else r.get("reference_errors", {})
-    wall = float(r.get("wall_s", math.nan)) - reference_s
-    total = float(r.get("total_s", math.nan)) - reference_s
+    reference_s = float(r.reference_s or 0.0)
+    errors = {} if finer_than_reference else (r.reference_errors or {})
+    wall = float(r.value("wall_s")) - reference_s
+    total = float(r.value("total_s")) - reference_s
     row = {
         "scene": scene_name,
         "discretisation": disc,
         "element": element,
         "n": run.n,
         "h": 1.0 / run.n,
-        "dofs": r.get("dofs"),
-        "newton_iterations": r.get("newton_iterations"),
-        "factorisations": r.get("factorisations"),
-        "gmres_iterations": r.get("gmres_iterations"),
+        "dofs": r.dofs,
+        "newton_iterations": r.newton_iterations,
+        "factorisations": r.factorisations,
+        "gmres_iterations": r.gmres_iterations,
         "mesh_s": mesh_s,
         "startup_s": startup_s,
-        "bulk_assembly_s": r.get("bulk_assembly_s"),
-        "assembly_s": r.get("assembly_s"),
-        "factorisation_s": r.get("factorisation_s"),
-        "first_factorisation_s": r.get("first_factorisation_s"),
-        "solve_s": r.get("solve_s"),
-        "newton_s": r.get("newton_s"),
-        "output_s": r.get("output_s"),
+        "bulk_assembly_s": r.bulk_assembly_s,
+        "assembly_s": r.assembly_s,
+        "factorisation_s": r.factorisation_s,
+        "first_factorisation_s": r.first_factorisation_s,
+        "solve_s": r.solve_s,
+        "newton_s": r.newton_s,
+        "output_s": r.output_s,
         "total_s": total,
         "wall_s": wall,
         "reference_s": reference_s,
-        "peak_rss_mb": r.get("peak_rss_mb"),
-        "rss_source": r.get("peak_rss_source"),
-        "newton_over_linear": r.get("newton_over_linear"),
+        "peak_rss_mb": r.peak_rss_mb,
+        "rss_source": r.peak_rss_source,
+        "newton_over_linear": r.newton_over_linear,
         "reused": run.reused,
     }
     for name in FIELDS:
@@ -375,7 +288,7 @@ def run_cost(
     ref_levels = sorted({n for n in levels if n < ref_n} | {ref_n})
     progress(f"reference: {ref_element} at n = {ref_n} (chain {ref_levels})")
     meshes, mesh_s = timed_meshes(ref_scene, ref_levels, layout)
-    ref_runs = run_chain(ref_scene, meshes, layout, force, progress, pipelined=False)
+    ref_runs = runs_of(run_chain(ref_scene, meshes, layout, force, progress, pipelined=False))
     ref_run = ref_runs[ref_n]
     ref_options = [
         f"reference.mesh={json.dumps(str(meshes[ref_n].resolve()))}",
@@ -393,7 +306,7 @@ def run_cost(
         disc_levels = [n for n in levels if n <= ref_n and not (n == ref_n and scene.element == ref_element)]
         progress(f"{name}: {disc.description}, levels {disc_levels}")
         meshes, mesh_s = timed_meshes(scene, disc_levels, layout, disc.grading)
-        runs = run_chain(scene, meshes, layout, force, progress, pipelined=False)
+        runs = runs_of(run_chain(scene, meshes, layout, force, progress, pipelined=False))
         rows += [row_of(base.name, name, scene.element, runs[n], mesh_s[n], startup) for n in disc_levels]
         norms = norms or reference_norms(runs[disc_levels[0]].record)
         if name == "P1":
@@ -414,26 +327,23 @@ def scaling_rows(
     """The P1 chain continued to finer levels, for time and memory against dofs only. A
     level that fails (out of memory, say) ends the chain with a row saying why, not the study."""
     rows = []
-    warm = runs[max(runs)].warm_start(meshes[max(runs)])
-    for n in sorted(levels):
-        start = time.perf_counter()
-        mesh = build_mesh(scene.geometry, n, layout.meshes_dir(scene.name)).path
-        mesh_s = time.perf_counter() - start
-        try:
-            run = run_level(scene, mesh, n, layout, force, warm)
-        except RunError as exc:
-            progress(f"scaling n={n} FAILED: {exc}")
+    below = max(runs)
+    finer = InlineMeshes(scene, levels, layout)
+    outcomes = run_chain(scene, finer, layout, force, quiet, pipelined=False,
+                         warm=runs[below].warm_start(meshes[below]))
+    for n, outcome in outcomes.items():
+        if outcome.run is None:
+            progress(f"scaling n={n} FAILED: {outcome.detail}")
             rows.append({"scene": scene.name, "discretisation": "P1", "element": "P1", "n": n, "h": 1.0 / n,
-                         "mesh_s": mesh_s, "startup_s": startup, "failure": str(exc)})
+                         "mesh_s": finer.seconds.get(n, math.nan), "startup_s": startup, "failure": outcome.detail})
             break
-        progress(f"scaling n={n} done in {run.record.get('wall_s', math.nan):.1f} s")
-        rows.append(row_of(scene.name, "P1", "P1", run, mesh_s, startup, finer_than_reference=True))
-        warm = run.warm_start(mesh)
+        progress(f"scaling n={n} done in {outcome.wall_s:.1f} s")
+        rows.append(row_of(scene.name, "P1", "P1", outcome.run, finer.seconds[n], startup, finer_than_reference=True))
     return rows
 
 
-def reference_norms(record: dict[str, Any]) -> dict[str, float]:
-    norms = dict(record.get("reference_norms", {}))
+def reference_norms(record: RunRecord) -> dict[str, float]:
+    norms = dict(record.reference_norms or {})
     if norms:
         norms["total"] = sum(norms.values())
     return norms
@@ -657,47 +567,25 @@ def summary(study: CostStudy) -> dict[str, Any]:
 
 
 def write_outputs(study: CostStudy, directory: Path) -> list[Path]:
-    directory.mkdir(parents=True, exist_ok=True)
-    paths = {
-        "cost.csv": lambda p: p.write_text(study.table.to_csv(index=False, float_format="%.6g")),
-        "fits.csv": lambda p: p.write_text(fits_table(study).to_csv(index=False, float_format="%.6g")),
-        "frontier.csv": lambda p: p.write_text(study.frontier.to_csv(index=False, float_format="%.6g")),
-        "frontier.md": lambda p: p.write_text(frontier_markdown(study)),
-        "scaling.csv": lambda p: p.write_text(study.scaling.to_csv(index=False, float_format="%.6g")),
-        "summary.json": lambda p: p.write_text(json.dumps(jsonable(summary(study)), indent=2) + "\n"),
+    written = [
+        write_csv(study.table, directory / "cost.csv"),
+        write_csv(fits_table(study), directory / "fits.csv"),
+        write_csv(study.frontier, directory / "frontier.csv"),
+        write_text(frontier_markdown(study), directory / "frontier.md"),
+        write_csv(study.scaling, directory / "scaling.csv"),
+        write_json(summary(study), directory / "summary.json"),
+    ]
+    plots = {
         "cost_vs_time.png": lambda p: plot_errors(study, "chain_s", "wall seconds (chain up to the level)", p),
         "cost_vs_dofs.png": lambda p: plot_errors(study, "dofs", "dofs", p),
         "time_split.png": lambda p: plot_time_split(study, p),
         "scaling.png": lambda p: plot_scaling(study, p),
     }
-    written = []
-    for name, write in paths.items():
-        target = directory / name
-        tmp = target.with_name(f".tmp-{name}")
-        write(tmp)
-        if tmp.exists():
-            os.replace(tmp, target)
-            written.append(target)
+    written += [directory / name for name, plot in plots.items() if write_with(plot, directory / name)]
     return written
 
 
-def jsonable(value: Any) -> Any:
-    if isinstance(value, dict):
-        return {str(k): jsonable(v) for k, v in value.items()}
-    if isinstance(value, (list, tuple)):
-        return [jsonable(v) for v in value]
-    if hasattr(value, "item"):
-        value = value.item()
-    if isinstance(value, float) and not math.isfinite(value):
-        return None
-    return value
-
-
 # ---------------------------------------------------------------- command line
-
-
-def level_list(text: str) -> tuple[int, ...]:
-    return tuple(sorted({int(part) for part in text.split(",") if part.strip()}))
 
 
 def reference_spec(text: str) -> tuple[str, int]:
@@ -707,43 +595,31 @@ def reference_spec(text: str) -> tuple[str, int]:
     return element, int(n)
 
 
-def main(argv: Sequence[str] | None = None) -> int:
-    top = argparse.ArgumentParser(prog="python -m harness.cost", description=__doc__.splitlines()[0])
-    top.add_argument("case", type=Path)
-    top.add_argument("--levels", type=level_list, help="levels n = 1/h (default: the case's)")
-    top.add_argument("--reference", type=reference_spec, default=None,
-                     help="ELEMENT:N of the reference (default P2 at the finest level)")
-    top.add_argument("--discretisations", default=",".join(DISCRETISATIONS),
-                     help=f"comma-separated, of {', '.join(DISCRETISATIONS)}")
-    top.add_argument("--scaling-levels", type=level_list, default=(128, 256),
-                     help="levels the P1 chain goes on to, for time and memory against dofs")
-    top.add_argument("--set", dest="overrides", action="append", default=[], metavar="KEY=VALUE")
-    top.add_argument("--results", type=Path, default=DEFAULT_RESULTS)
-    top.add_argument("--force", action="store_true", help="rerun every level (for timings)")
-    args = top.parse_args(argv)
-    try:
-        base = load_scene(args.case, args.overrides)
-        levels = args.levels or base.levels
-        reference = args.reference or ("P2", max(levels))
-        discs = [d.strip() for d in args.discretisations.split(",") if d.strip()]
-        unknown = [d for d in discs if d not in DISCRETISATIONS]
-        if unknown:
-            raise HarnessError(f"unknown discretisation {unknown[0]!r} (have {', '.join(DISCRETISATIONS)})")
-        study = run_cost(args.case, levels, discs, reference, args.scaling_levels, args.overrides,
-                         args.results, args.force)
-        written = write_outputs(study, args.results)
-    except HarnessError as exc:
-        print(f"error: {exc}", file=sys.stderr)
-        return 2
+def add_arguments(parser: argparse.ArgumentParser) -> None:
+    add_case(parser)
+    add_levels(parser)
+    parser.add_argument("--reference", type=reference_spec, default=None,
+                        help="ELEMENT:N of the reference (default P2 at the finest level)")
+    parser.add_argument("--discretisations", type=name_list, default=list(DISCRETISATIONS),
+                        help=f"comma-separated, of {', '.join(DISCRETISATIONS)}")
+    parser.add_argument("--scaling-levels", type=level_list, default=(128, 256),
+                        help="levels the P1 chain goes on to, for time and memory against dofs")
+    add_common(parser, results=DEFAULT_RESULTS)
+
+
+def run(args: argparse.Namespace) -> int:
+    base = load_scene(args.case, args.overrides)
+    levels = tuple(sorted(set(args.levels or base.levels)))
+    reference = args.reference or ("P2", max(levels))
+    unknown = [d for d in args.discretisations if d not in DISCRETISATIONS]
+    if unknown:
+        raise SceneError(f"unknown discretisation {unknown[0]!r} (have {', '.join(DISCRETISATIONS)})")
+    study = run_cost(args.case, levels, args.discretisations, reference, tuple(sorted(set(args.scaling_levels))),
+                     args.overrides, args.results, args.force)
+    written = write_outputs(study, args.results)
     print(study.table[["discretisation", "n", "dofs", "newton_iterations", "wall_s", "chain_s", "peak_rss_mb",
                        "err_u", "err_phi", "err_theta", "newton_over_linear"]]
           .to_string(index=False, float_format=lambda v: f"{v:.4g}"))
     print(frontier_markdown(study))
     print("wrote " + ", ".join(str(p) for p in written))
     return 0
-
-
-if __name__ == "__main__":
-    from harness.faults import guarded  # signals, exit codes, one error line
-
-    sys.exit(guarded(main))

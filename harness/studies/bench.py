@@ -1,6 +1,6 @@
 """A benchmark, not a test (issue 5): each measurement several times, medians and spread.
 
-    python -m harness.bench cases/paper.toml [--repeats 5] [--levels 2,...,64]
+    python -m harness bench cases/paper.toml [--repeats 5] [--levels 2,...,64]
         [--max-load 1.2] [--wait-s 1200] [--results results/bench]
 
 Measurements, each repeated:
@@ -14,7 +14,10 @@ Measurements, each repeated:
            FreeFEM offers here (run.linear_solver): the measurement behind the default;
   cold     the finest level alone from a zero initial guess, no chain below it: what a
            user pays who solves only that level;
-  startup  FreeFEM running an empty script.
+  startup  FreeFEM running an empty script;
+  process  `python -m harness solve CASE --n FINEST --force` as a whole process from nothing
+           (imports, the chain below, the report), beside its own FreeFEM run of the finest
+           level: the start-up overhead of issue 13.
 Ratios per repetition: sweep / finest level within that sweep, and newton_over_linear of
 the finest level (run.json: Newton wall time over one bulk assembly plus one
 factorisation, same run). The GetFEM implementation of the same scheme took 11.6 s for
@@ -28,7 +31,6 @@ number measured under load is a different number.
 from __future__ import annotations
 
 import argparse
-import json
 import os
 import platform
 import shutil
@@ -43,13 +45,16 @@ from typing import Any, Callable, Sequence
 import pandas as pd
 
 from harness import freefem
-from harness.cost import freefem_startup_s, jsonable, level_list, timed_meshes
+from harness.arguments import add_case, add_levels, name_list, positive_int
+from harness.engine import freefem_startup_s, quiet, run_chain, runs_of, timed_meshes
 from harness.errors import HarnessError
 from harness.layout import REPO, Layout
+from harness.record import read_run_json
 from harness.run import WarmStart, run_level
 from harness.scene import Scene, load_scene
 from harness.schema import LINEAR_SOLVERS
-from harness.study import run_chain, run_study
+from harness.study import run_study
+from harness.writers import write_csv, write_json, write_text
 
 GETFEM_FINEST_S = 11.6  # issue 5: GetFEM + SuperLU, 5 Newton iterations, h = 1/64
 DEFAULT_RESULTS = REPO / "results" / "bench"
@@ -79,7 +84,7 @@ def bench_finest(case: Path, overrides: Sequence[str], levels: Sequence[int], la
     meshes, _ = timed_meshes(scene, levels, layout)
     finest = max(levels)
     below = {n: p for n, p in meshes.items() if n < finest}
-    runs = run_chain(scene, below, layout, False, lambda s: None) if below else {}
+    runs = runs_of(run_chain(scene, below, layout, False, quiet)) if below else {}
     warm = runs[max(below)].warm_start(meshes[max(below)]) if below else None
     return repeat_level(scene, meshes[finest], finest, layout, warm, repeats, "finest", say)
 
@@ -90,9 +95,9 @@ def repeat_level(scene: Scene, mesh: Path, n: int, layout: Layout, warm: WarmSta
     out = []
     for i in range(repeats):
         run = run_level(scene, mesh, n, layout, force=True, warm=warm)
-        out.append({k: run.record.get(k) for k in FINEST_KEYS})
-        say(f"{label} n={n} #{i + 1}: {run.record['wall_s']:.2f} s, {run.record['newton_iterations']} Newton its, "
-            f"newton_over_linear {run.record.get('newton_over_linear', float('nan')):.2f}")
+        out.append({k: getattr(run.record, k) for k in FINEST_KEYS})
+        say(f"{label} n={n} #{i + 1}: {run.record.wall_s:.2f} s, {run.record.newton_iterations} Newton its, "
+            f"newton_over_linear {run.record.value('newton_over_linear'):.2f}")
     return out
 
 
@@ -123,9 +128,9 @@ def bench_sweep(case: Path, overrides: Sequence[str], levels: Sequence[int], rep
             study = run_study(scene, tuple(levels), layout, jobs=os.cpu_count() or 1, force=True,
                               progress=lambda s: None)
             finest = study.runs[max(levels)].record
-            out.append({"sweep_s": study.wall_s, "finest_in_sweep_s": finest["wall_s"],
-                        "sweep_over_finest": study.wall_s / finest["wall_s"],
-                        "runs_s": sum(r.record["wall_s"] for r in study.runs.values())})
+            out.append({"sweep_s": study.wall_s, "finest_in_sweep_s": finest.wall_s,
+                        "sweep_over_finest": study.wall_s / finest.wall_s,
+                        "runs_s": sum(r.record.wall_s for r in study.runs.values())})
         say(f"sweep #{i + 1}: {out[-1]['sweep_s']:.2f} s, finest in it {out[-1]['finest_in_sweep_s']:.2f} s")
     return out
 
@@ -149,6 +154,33 @@ def bench_cli(case: Path, overrides: Sequence[str], levels: Sequence[int], repea
     return out
 
 
+def bench_process(case: Path, overrides: Sequence[str], levels: Sequence[int], repeats: int,
+                  say: Callable[[str], None]) -> list[dict[str, Any]]:
+    """`python -m harness solve CASE --n FINEST --force` as a whole process from nothing (the
+    chain below the finest level included, as a user pays it), against that process's own
+    FreeFEM run of the finest level (run.json's wall_s): issue 13's start-up overhead."""
+    out = []
+    finest = max(levels)
+    for i in range(repeats):
+        with tempfile.TemporaryDirectory(prefix="bench-process-") as tmp:
+            argv = [sys.executable, "-m", "harness", "solve", str(case), "--n", str(finest), "--force",
+                    "--results", tmp]
+            for item in overrides:
+                argv += ["--set", item]
+            start = time.perf_counter()
+            done = subprocess.run(argv, cwd=REPO, capture_output=True, text=True)
+            wall = time.perf_counter() - start
+            if done.returncode not in (0, 1):  # 1: a failed check, still a finished run
+                raise HarnessError(f"harness solve failed: {done.stderr.strip()[-300:]}")
+            scene = load_scene(case, overrides)
+            record = read_run_json(Layout(results=Path(tmp)).level_dir(scene.name, finest))
+        if record is None or record.wall_s is None:
+            raise HarnessError(f"harness solve left no run.json of n={finest}")
+        out.append({"process_s": wall, "finest_freefem_s": record.wall_s, "process_over_finest": wall / record.wall_s})
+        say(f"process #{i + 1}: {wall:.2f} s, its FreeFEM run of n={finest} {record.wall_s:.2f} s")
+    return out
+
+
 def summarise(raw: dict[str, list[dict[str, Any]]]) -> pd.DataFrame:
     rows = []
     for measurement, samples in raw.items():
@@ -169,7 +201,7 @@ def summarise(raw: dict[str, list[dict[str, Any]]]) -> pd.DataFrame:
 
 def markdown(table: pd.DataFrame, meta: dict[str, Any]) -> str:
     lines = [
-        "# Benchmark (python -m harness.bench)",
+        "# Benchmark (python -m harness bench)",
         "",
         f"{meta['repeats']} repetitions each; 1-min load {meta['load_before']:.2f} before, "
         f"{meta['load_after']:.2f} after; {meta['cpus']} CPUs ({meta['cpu']}); levels {meta['levels']}.",
@@ -192,46 +224,47 @@ def cpu_name() -> str:
     return platform.processor() or "unknown"
 
 
-def main(argv: Sequence[str] | None = None) -> int:
-    top = argparse.ArgumentParser(prog="python -m harness.bench", description=__doc__.splitlines()[0])
-    top.add_argument("case", type=Path)
-    top.add_argument("--levels", type=level_list, help="levels of the sweep (default: the case's)")
-    top.add_argument("--repeats", type=int, default=5)
-    top.add_argument("--only", default="startup,finest,solvers,cold,sweep,cli", help="comma-separated measurements")
-    top.add_argument("--max-load", type=float, default=1.2, help="wait for a 1-min load below this")
-    top.add_argument("--wait-s", type=float, default=1200, help="at most this long")
-    top.add_argument("--set", dest="overrides", action="append", default=[], metavar="KEY=VALUE")
-    top.add_argument("--results", type=Path, default=DEFAULT_RESULTS)
-    args = top.parse_args(argv)
+MEASUREMENTS = ("startup", "finest", "solvers", "cold", "sweep", "cli", "process")
 
+
+def add_arguments(parser: argparse.ArgumentParser) -> None:
+    add_case(parser)
+    add_levels(parser, what="the case's: the sweep's levels")
+    parser.add_argument("--repeats", type=positive_int, default=5)
+    parser.add_argument("--only", type=name_list, default=list(MEASUREMENTS),
+                        help=f"comma-separated measurements ({', '.join(MEASUREMENTS)})")
+    parser.add_argument("--max-load", type=float, default=1.2, help="wait for a 1-min load below this")
+    parser.add_argument("--wait-s", type=float, default=1200, help="at most this long")
+    parser.add_argument("--results", type=Path, default=DEFAULT_RESULTS)
+
+
+def run(args: argparse.Namespace) -> int:
     def say(text: str) -> None:
         print(text, file=sys.stderr, flush=True)
 
-    try:
-        scene = load_scene(args.case, args.overrides)
-        levels = tuple(args.levels or scene.levels)
-        freefem.freefem_version()
-        layout = Layout(results=args.results / "runs")
-        wanted = [m.strip() for m in args.only.split(",") if m.strip()]
-        load_before = wait_for_quiet(args.max_load, args.wait_s, say)
-        say(f"1-min load {load_before:.2f}: starting")
-        raw: dict[str, list[dict[str, Any]]] = {}
-        if "startup" in wanted:
-            raw["startup"] = [{"freefem_empty_script_s": freefem_startup_s(1)} for _ in range(args.repeats)]
-        if "finest" in wanted:
-            raw["finest"] = bench_finest(args.case, args.overrides, levels, layout, args.repeats, say)
-        if "solvers" in wanted:
-            raw.update(bench_solvers(args.case, args.overrides, levels, layout, args.repeats, say))
-        if "cold" in wanted:
-            raw["cold"] = bench_cold(args.case, args.overrides, levels, layout, args.repeats, say)
-        if "sweep" in wanted:
-            raw["sweep"] = bench_sweep(args.case, args.overrides, levels, args.repeats, say)
-        if "cli" in wanted:
-            raw["cli"] = bench_cli(args.case, args.overrides, levels, args.repeats, say)
-        load_after = os.getloadavg()[0]
-    except HarnessError as exc:
-        print(f"error: {exc}", file=sys.stderr)
-        return 2
+    scene = load_scene(args.case, args.overrides)
+    levels = tuple(args.levels or scene.levels)
+    freefem.freefem_version()
+    layout = Layout(results=args.results / "runs")
+    wanted = args.only
+    load_before = wait_for_quiet(args.max_load, args.wait_s, say)
+    say(f"1-min load {load_before:.2f}: starting")
+    raw: dict[str, list[dict[str, Any]]] = {}
+    if "startup" in wanted:
+        raw["startup"] = [{"freefem_empty_script_s": freefem_startup_s(1)} for _ in range(args.repeats)]
+    if "finest" in wanted:
+        raw["finest"] = bench_finest(args.case, args.overrides, levels, layout, args.repeats, say)
+    if "solvers" in wanted:
+        raw.update(bench_solvers(args.case, args.overrides, levels, layout, args.repeats, say))
+    if "cold" in wanted:
+        raw["cold"] = bench_cold(args.case, args.overrides, levels, layout, args.repeats, say)
+    if "sweep" in wanted:
+        raw["sweep"] = bench_sweep(args.case, args.overrides, levels, args.repeats, say)
+    if "cli" in wanted:
+        raw["cli"] = bench_cli(args.case, args.overrides, levels, args.repeats, say)
+    if "process" in wanted:
+        raw["process"] = bench_process(args.case, args.overrides, levels, args.repeats, say)
+    load_after = os.getloadavg()[0]
     table = summarise(raw)
     for alone in ("finest", "cold"):
         if "sweep" in raw and alone in raw:
@@ -243,16 +276,9 @@ def main(argv: Sequence[str] | None = None) -> int:
             "cpus": os.cpu_count(), "cpu": cpu_name(), "levels": list(levels),
             "freefem_version": freefem.freefem_version(), "getfem_finest_s": GETFEM_FINEST_S,
             "date": time.strftime("%Y-%m-%d %H:%M:%S")}
-    args.results.mkdir(parents=True, exist_ok=True)
-    (args.results / "bench.csv").write_text(table.to_csv(index=False, float_format="%.6g"))
-    (args.results / "bench.md").write_text(markdown(table, meta))
-    (args.results / "bench.json").write_text(json.dumps(jsonable({"meta": meta, "raw": raw}), indent=2) + "\n")
+    write_csv(table, args.results / "bench.csv")
+    write_text(markdown(table, meta), args.results / "bench.md")
+    write_json({"meta": meta, "raw": raw}, args.results / "bench.json")
     shutil.rmtree(layout.case_dir("bench-sweep"), ignore_errors=True)
     print(markdown(table, meta))
     return 0
-
-
-if __name__ == "__main__":
-    from harness.faults import guarded  # signals, exit codes, one error line
-
-    sys.exit(guarded(main))

@@ -1,0 +1,29 @@
+"""Each section of a case file as a frozen dataclass, derived from the schema
+(harness/schema.py) so that the two cannot drift apart: `scene.sections.contact.gap`
+instead of indexing the raw table. A key of an effect that is off is None (FreeFEM never
+reads it); a section the schema lists and the file leaves out holds its defaults."""
+
+from __future__ import annotations
+
+import dataclasses
+from typing import Any
+
+from harness.schema import SCHEMA
+
+
+def section_class(section: str) -> type:
+    keys = SCHEMA[section]
+    fields = [(key, spec.kind | None, dataclasses.field(default=None)) for key, spec in keys.items()]
+    name = "".join(part.capitalize() for part in section.split("_")) + "Section"
+    return dataclasses.make_dataclass(name, fields, frozen=True)
+
+
+# section -> its dataclass; `Sections` holds one instance of each.
+SECTION_CLASSES: dict[str, type] = {section: section_class(section) for section in SCHEMA}
+Sections = dataclasses.make_dataclass(
+    "Sections", [(section, cls) for section, cls in SECTION_CLASSES.items()], frozen=True)
+
+
+def sections_of(table: dict[str, dict[str, Any]]) -> Any:
+    """A resolved table (scene.resolve) as a Sections instance."""
+    return Sections(**{s: cls(**table.get(s, {})) for s, cls in SECTION_CLASSES.items()})
