@@ -6,6 +6,9 @@ PY := $(VENV)/bin/python
 STAMP := $(VENV)/.installed
 
 .PHONY: convergence scenes test baseline freefem clean-runs
+# scenes, stress and branches on a Dask cluster (README, "Past one machine"), e.g.
+#   make stress CLUSTER_FLAGS="--cluster local:2"   or   CLUSTER_FLAGS="--scheduler tcp://host:8786"
+CLUSTER_FLAGS ?=
 
 convergence: $(STAMP) freefem
 	$(PY) -m harness convergence cases/paper.toml
@@ -13,7 +16,7 @@ convergence: $(STAMP) freefem
 # A convergence study of every scene in cases/ and one table of their unknowns, dofs,
 # times and slopes (results/scenes/summary.csv).
 scenes: $(STAMP) freefem
-	$(PY) -m harness scenes
+	$(PY) -m harness scenes $(CLUSTER_FLAGS)
 
 test: $(STAMP) freefem
 	$(PY) -m pytest -q
@@ -47,12 +50,12 @@ verify: $(STAMP) freefem
 # (paper_iterations.csv). Exits 1 on an unexpected failure or a failed check.
 .PHONY: stress branches
 stress: $(STAMP) freefem
-	$(PY) -m harness stress
+	$(PY) -m harness stress $(CLUSTER_FLAGS)
 
 # Both solution branches of the paper's scene, from zero and from the pressed start, each a
 # convergence study on levels 2 ... 64, into results/branches/ (branches.csv, branches.md).
 branches: $(STAMP) freefem
-	$(PY) -m harness branches
+	$(PY) -m harness branches $(CLUSTER_FLAGS)
 
 # What accuracy costs (issue 5): P1, P2, P1 with a loose Newton tolerance and P1 on a mesh
 # graded towards the ends of Gamma_3, against one P2 reference (h = 1/64); the P1 chain on
@@ -69,3 +72,12 @@ cost: $(STAMP) freefem
 
 bench: $(STAMP) freefem
 	$(PY) -m harness bench cases/paper.toml $(BENCH_FLAGS)
+
+# Past one machine (issue 15): the paper scene solved on 1 and 2 MPI ranks (time, Krylov
+# iterations, per-rank memory, agreement) and the stress suite in this process
+# against a local Dask cluster of 2 workers, into results/scale/ (mpi.csv, stress.csv,
+# scale.md). Small sizes by default; on an idle machine:
+#   make scale SCALE_FLAGS="--mpi-levels 64,256 --stress-levels="
+.PHONY: scale
+scale: $(STAMP) freefem
+	$(PY) -m harness scale $(SCALE_FLAGS)

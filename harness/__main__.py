@@ -10,4 +10,6 @@ except KeyboardInterrupt as exc:
     print(f"error: interrupted by {exc.args[0] if exc.args else 'SIGINT'} during start-up", file=sys.stderr)
     sys.exit(130)
 
-sys.exit(main())
+# Guarded: Dask's worker processes (spawned) import the parent's main module again.
+if __name__ == "__main__":
+    sys.exit(main())

@@ -98,6 +98,10 @@ class BackgroundMeshes(Mapping[int, Path]):
     def __getitem__(self, n: int) -> Path:
         return self._futures[n].result().path
 
+    def ready(self, n: int) -> bool:
+        """Whether level n's mesh is made (looking it up will not wait)."""
+        return self._futures[n].done()
+
     def __iter__(self) -> Iterator[int]:
         return iter(self._futures)
 
@@ -201,24 +205,38 @@ def run_chain(
 
     Pipelined (the default): while a level runs, the next one is already started (its
     compilation, meshes and bulk assembly, freefem/bulk.idp) and waits for this level's
-    state: on two cores that setup leaves the critical path. Off for timing a level alone."""
+    state: on two cores that setup leaves the critical path. The finest level, the one
+    that costs most to set up, is started with the coarsest (issue 13, item 6: its setup
+    overlaps the whole chain below it, not only the level next to it). Off for timing a
+    level alone."""
     outcomes: dict[int, LevelOutcome] = {}
     levels = sorted(meshes)
     chained = chained and scene.initial_guess == "coarser"  # any other start ignores the level below
     current: LevelRun | None = None
     following: LevelRun | None = None
+    finest: LevelRun | None = None
     try:
+        # Not when the finest level has a result already: it is most likely reused, and a
+        # FreeFEM started for nothing costs a start-up.
+        top = levels[-1]
+        early = pipelined and chained and len(levels) > 2 and (force or not layout.level_dir(scene.name, top).exists())
         for count, n in enumerate(levels, start=1):
             began = time.perf_counter()
             current = current or LevelRun(scene, meshes[n], n, layout, force)
             try:
                 cached = current.start(warm if chained else None)
+                if early and finest is None and count < len(levels) - 1 and mesh_ready(meshes, top):
+                    finest = launched_early(scene, meshes, top, levels[-2], layout, force)
+                    early = finest is not None
                 ahead: HarnessError | None = None
                 if count < len(levels):
                     try:
-                        following = LevelRun(scene, meshes[levels[count]], levels[count], layout, force)
-                        if pipelined and chained and cached is None:
-                            following.launch_early(meshes[n])
+                        if count == len(levels) - 1 and finest is not None:
+                            following, finest = finest, None  # launched with the coarsest
+                        else:
+                            following = LevelRun(scene, meshes[levels[count]], levels[count], layout, force)
+                            if pipelined and chained and cached is None:
+                                following.launch_early(meshes[n])
                     except (MeshError, EnvironmentFault) as exc:
                         # The next level's mesh or launch failed while this level runs: this
                         # level's own failure, if any, comes first (failures in level order).
@@ -236,10 +254,32 @@ def run_chain(
             warm = run.warm_start(meshes[n])
             current, following = following, None
     finally:
-        for level in (current, following):
+        for level in (current, following, finest):
             if level is not None:
                 level.abandon()
     return outcomes
+
+
+def mesh_ready(meshes: Mapping[int, Path], n: int) -> bool:
+    """Whether looking level n's mesh up would not wait (a background mesher may still run)."""
+    ready = getattr(meshes, "ready", None)
+    return ready(n) if callable(ready) else True
+
+
+def launched_early(scene: Scene, meshes: Mapping[int, Path], n: int, coarser: int, layout: Layout,
+                   force: bool) -> LevelRun | None:
+    """Level n's FreeFEM, started now to wait for the state of level `coarser`; None when its
+    mesh or launch fails (the chain meets that failure again in its turn, in level order)."""
+    try:
+        level = LevelRun(scene, meshes[n], n, layout, force)
+    except (MeshError, EnvironmentFault):
+        return None
+    try:
+        level.launch_early(meshes[coarser])
+    except (MeshError, EnvironmentFault):
+        level.abandon()
+        return None
+    return level
 
 
 @dataclass(frozen=True)

@@ -107,17 +107,17 @@ def with_parent_death_signal(argv: list[str]) -> list[str]:
     return [setpriv, "--pdeathsig", "KILL", *argv]
 
 
-def launch(argv: list[str], cwd: Path, waits_on_stdin: bool = False) -> Launched:
+def launch(argv: list[str], cwd: Path, waits_on_stdin: bool = False, env: dict[str, str] | None = None) -> Launched:
     """Start FreeFEM in `cwd`, its own process group; stdin is a pipe when it will wait for a
     line (Launched.resume), else empty."""
     try:
         with open(cwd / "stdout.txt", "wb") as out, open(cwd / "stderr.txt", "wb") as err:
             proc = subprocess.Popen(
-                with_parent_death_signal(argv), cwd=cwd, env=environment(), stdout=out, stderr=err,
+                with_parent_death_signal(argv), cwd=cwd, env=env or environment(), stdout=out, stderr=err,
                 stdin=subprocess.PIPE if waits_on_stdin else subprocess.DEVNULL, start_new_session=True,
             )
     except FileNotFoundError:
-        raise EnvironmentFault(f"{BINARY} not found on PATH (`make test` or `make convergence` installs it)") from None
+        raise EnvironmentFault(f"{argv[0]} not found on PATH (`make test` or `make convergence` installs it)") from None
     CHILDREN.add_group(proc.pid)  # its own session: a signal to the harness does not reach it
     launched = Launched(proc, time.perf_counter())
     if CHILDREN.signum is not None:  # a worker thread launching after the signal: end it at once

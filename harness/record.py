@@ -101,6 +101,12 @@ class RunRecord:
     waited_s: float | None = None
     peak_rss_source: str | None = None
     started_from: str | None = None
+    # -- a run on MPI ranks (run.ranks > 1; harness/launcher.py merge_records): the ranks,
+    # freefem/parallel_output.idp's figures, and the sequential pass's own peak and residuals
+    ranks: int | None = None
+    parallel: dict[str, Any] | None = None
+    post_pass_peak_rss_mb: float | None = None
+    post_pass_residuals: dict[str, list[float]] | None = None
 
     def value(self, name: str) -> Any:
         """A declared key by name (a table's column list); NaN when the run has none."""
@@ -134,7 +140,8 @@ class RunRecord:
 KEYS = frozenset(f.name for f in dataclasses.fields(RunRecord))
 # What output.idp writes on every converged run (the rest depends on the scene).
 ALWAYS_WRITTEN = ("n", "converged", "reason", "newton_iterations", "dofs", "fields")
-HARNESS_KEYS = ("wall_s", "pipelined", "waited_s", "peak_rss_source", "started_from")
+HARNESS_KEYS = ("wall_s", "pipelined", "waited_s", "peak_rss_source", "started_from",
+                "ranks", "parallel", "post_pass_peak_rss_mb", "post_pass_residuals")
 
 
 def read_run_json(directory: Path) -> RunRecord | None:

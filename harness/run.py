@@ -10,7 +10,7 @@ from dataclasses import dataclass
 from pathlib import Path
 from typing import Any
 
-from harness import freefem
+from harness import freefem, launcher
 from harness.atomic import write_atomic
 from harness.contract import Failure
 from harness.cache import cached_record, run_inputs, sha256_file, write_checksums
@@ -92,6 +92,7 @@ class LevelRun:
 
     def __init__(self, scene: Scene, mesh: Path, n: int, layout: Layout, force: bool = False) -> None:
         check_solver_files(scene, layout)
+        launcher.check_parallel(scene)
         self.scene, self.mesh, self.n, self.layout, self.force = scene, mesh, n, layout, force
         self.work: Path | None = None
         self.launched: freefem.Launched | None = None
@@ -101,6 +102,8 @@ class LevelRun:
 
     def launch_early(self, coarser_mesh: Path) -> None:
         """Start FreeFEM now; it will wait for the state of the run on `coarser_mesh`."""
+        if launcher.ranks_of(self.scene).parallel:  # stdin reaches rank 0 only: no pipelined start
+            return
         self.work = self._new_work_dir()
         self.launched = self._launch("file", WarmStart(coarser_mesh, Path("-")), waits=True)
 
@@ -109,6 +112,9 @@ class LevelRun:
         under way (wait() for it)."""
         guess, start = start_of(self.scene, warm)
         described = {**self.scene.run_inputs(), "start": guess}
+        ranks = launcher.ranks_of(self.scene)
+        if ranks.parallel:  # a run on other ranks is another measurement (same solution to round-off)
+            described["ranks"] = ranks.count
         if start and start.key:
             described["start_key"] = start.key
         elif start:
@@ -134,6 +140,9 @@ class LevelRun:
         work, scene, n = self.work, self.scene, self.n
         try:
             outcome = freefem.finish(self.launched, scene.timeout_s)
+            if launcher.ranks_of(scene).parallel and outcome.returncode == 0:
+                post = post_pass_command(work, scene, self.mesh, n, self.layout)
+                outcome = launcher.post_pass(work, post, outcome, scene.timeout_s)
             if CHILDREN.signum is not None:  # killed by the signal handler, not a failure of its own
                 raise Interrupted(CHILDREN.signum)
             waited = None if self.resumed_at is None else waited_s(work, self.resumed_at)
@@ -178,6 +187,8 @@ class LevelRun:
     def _launch(self, guess: str, start: WarmStart | None, waits: bool) -> freefem.Launched:
         assert self.work is not None
         argv = solver_command(self.work, self.scene, self.mesh.resolve(), self.n, self.layout, guess, start)
+        if launcher.ranks_of(self.scene).parallel:
+            return freefem.launch(argv, self.work, env=launcher.environment())
         return freefem.launch(argv, self.work, waits_on_stdin=waits)
 
 
@@ -215,12 +226,17 @@ def keyed_options(options: list[str]) -> tuple[str, ...]:
 
 
 def solver_inputs(
-    scene: Scene, mesh: Path, n: int, layout: Layout, guess: str, start: WarmStart | None, out: Path | None = None
+    scene: Scene, mesh: Path, n: int, layout: Layout, guess: str, start: WarmStart | None, out: Path | None = None,
+    sequential: bool = False,
 ) -> tuple[str, list[str]]:
-    """main.edp's text and FreeFEM's options. A start state "-" is read from stdin (a pipelined run)."""
+    """main.edp's text and FreeFEM's options. A start state "-" is read from stdin (a pipelined run).
+    On several ranks (run.ranks > 1) the text is the distributed scheme's, unless `sequential`."""
     macros = {**manufactured_macros(scene, layout), **scene.reference_macros()}
+    parallel = launcher.ranks_of(scene).parallel and not sequential
     text = main_script(scene.material, scene.effects, layout, element=scene.element, macros=macros,
-                       linear_solver=scene.linear_solver, dimension=scene.dimension)
+                       linear_solver=launcher.SUBDOMAIN_SOLVER if parallel else scene.linear_solver,
+                       scheme=layout.freefem / launcher.PARALLEL_SCHEME if parallel else None,
+                       dimension=scene.dimension)
     options = ["-mesh", str(mesh.resolve()), "-out", str(out.resolve() if out else "-"), "-n", str(n)]
     options += freefem.scene_options(scene.solver_parameters(), guess)
     if start:
@@ -246,7 +262,18 @@ def solver_command(
     script = work / "main.edp"
     text, options = solver_inputs(scene, mesh, n, layout, guess, start, out=work)
     script.write_text(text)
-    return freefem.command(script, options)
+    ranks = launcher.ranks_of(scene)
+    return ranks.argv(script, options) if ranks.parallel else freefem.command(script, options)
+
+
+def post_pass_command(work: Path, scene: Scene, mesh: Path, n: int, layout: Layout) -> list[str]:
+    """The sequential pass after a distributed solve (harness/launcher.py): post.edp from
+    the gathered state, no Newton step."""
+    script = work / "post.edp"
+    start = WarmStart(mesh, work / "parallel_state.txt")
+    text, options = solver_inputs(scene, mesh, n, layout, "file", start, out=work, sequential=True)
+    script.write_text(text)
+    return freefem.command(script, launcher.without_newton_steps(options))
 
 
 def collect(

@@ -173,6 +173,10 @@ SCHEMA: dict[str, dict[str, Key]] = {
         # fastest here at every level (results/bench/) and, unlike the built-in UMFPACK
         # (32-bit indices), reaches h = 1/256.
         "linear_solver": Key(str, "mumps", one_of(*LINEAR_SOLVERS)),
+        # MPI ranks of one solve (freefem/parallel.idp, harness/launcher.py); 1: the sequential scheme.
+        "ranks": Key(int, 1, positive),
+        # How ranks are started; {ranks} is replaced. On a SLURM cluster: "srun -n {ranks} FreeFem++-mpi".
+        "launcher": Key(str, "ff-mpirun -np {ranks}"),
     },
     "study": {
         "levels": Key(list, check=positive_ints),

@@ -29,6 +29,7 @@ def main_script(
     macros: Mapping[str, str] | None = None,
     linear_solver: str = "mumps",
     dimension: int = 2,
+    scheme: Path | None = None,
 ) -> str:
     lines = ["// Written by the harness (harness/script.py); edit the scene, not this file."]
     plugin, name = LINEAR_SOLVERS[linear_solver]
@@ -46,7 +47,7 @@ def main_script(
     includes: list[Path] = [contract_path(), layout.material_file(material)]
     if layout.material_reduction_file().is_file():
         includes.append(layout.material_reduction_file())
-    includes.append(layout.scheme_file())
+    includes.append(scheme or layout.scheme_file())
     lines += [f'include "{p.resolve()}"' for p in includes]
     return "\n".join(lines) + "\n"
 

@@ -2,12 +2,16 @@
 # Installs FreeFEM from Debian's packages when it is missing. Both FreeFEM packages are
 # needed: the plugins (gmsh, iovtk, MUMPS_seq) live in libfreefem++. OpenBLAS replaces the
 # reference BLAS under MUMPS and UMFPACK (Debian's alternatives): at h = 1/64 the
-# factorisation drops from 1.16 s to 0.60 s (results/bench/).
+# factorisation drops from 1.16 s to 0.60 s (results/bench/). libfreefem++-dev brings
+# macro_ddm.idp, the mesh decomposition of a solve on MPI ranks (run.ranks > 1,
+# freefem/parallel.idp); FreeFem++-mpi, ff-mpirun and OpenMPI come with freefem++.
 set -euo pipefail
 have_openblas() { ls /usr/lib/*/openblas-pthread/libblas.so.3 >/dev/null 2>&1; }
-if command -v FreeFem++ >/dev/null 2>&1 && [ -f /usr/lib/freefem++/MUMPS_seq.so ] && have_openblas; then
+DDM=/usr/include/freefem++/idp/macro_ddm.idp
+if command -v FreeFem++ >/dev/null 2>&1 && [ -f /usr/lib/freefem++/MUMPS_seq.so ] && have_openblas && [ -f "$DDM" ]; then
   exit 0
 fi
-bash "$(dirname "$0")/apt-install.sh" freefem++ libfreefem++ libopenblas0-pthread
+bash "$(dirname "$0")/apt-install.sh" freefem++ libfreefem++ libfreefem++-dev libopenblas0-pthread
 command -v FreeFem++ >/dev/null || { echo "error: FreeFem++ still missing after apt-get install" >&2; exit 1; }
 [ -f /usr/lib/freefem++/MUMPS_seq.so ] || { echo "error: FreeFEM's MUMPS_seq plugin is missing after apt-get install" >&2; exit 1; }
+[ -f "$DDM" ] || { echo "error: $DDM (libfreefem++-dev) is missing after apt-get install" >&2; exit 1; }

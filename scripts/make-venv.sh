@@ -11,5 +11,5 @@ fi
 rm -rf "$venv"
 "$python" -m venv "$venv"
 "$venv/bin/python" -m pip install -q --upgrade pip
-"$venv/bin/python" -m pip install -q -e .
+"$venv/bin/python" -m pip install -q -e ".[cluster]"
 touch "$venv/.installed"

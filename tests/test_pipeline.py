@@ -1,4 +1,4 @@
-"""The pipelined chain (harness/study.py, freefem/bulk.idp): each level's FreeFEM starts
+"""The pipelined chain (harness/engine.py, freefem/bulk.idp): each level's FreeFEM starts
 while the level below is still running and reads that level's state from stdin. It must
 give the same solutions as running one level at a time, and a failure must not leave the
 early-started process or its directory behind."""
@@ -69,3 +69,26 @@ def test_a_failed_level_stops_the_early_started_next_level(tmp_path):
     assert [p.name for p in case_dir.glob(".tmp-*")] == []
     assert (case_dir / "n2.failed" / "stdout.txt").is_file()
     assert not (case_dir / "n4").exists()
+
+
+def test_the_finest_level_starts_with_the_coarsest_and_only_when_it_will_run(tmp_path, monkeypatch):
+    """Issue 13, item 6: the finest level's setup overlaps the whole chain below it. Its
+    FreeFEM is launched while the coarsest runs, before the next level's; a second,
+    cached study launches none (the finest's result is there and is reused)."""
+    from harness.run import LevelRun
+
+    launched: list[int] = []
+    original = LevelRun.launch_early
+
+    def recording(self, coarser_mesh):
+        launched.append(self.n)
+        original(self, coarser_mesh)
+
+    monkeypatch.setattr(LevelRun, "launch_early", recording)
+    _, runs = chain(tmp_path, True)
+    assert launched == [8, 4]
+    assert runs[8].record.pipelined is True and runs[8].record.ready_s > 0
+    launched.clear()
+    _, again = chain(tmp_path, True)
+    assert launched == [] and all(run.reused for run in again.values())
+    assert freefem_processes_under(tmp_path) == []

@@ -30,6 +30,7 @@ from typing import Any, Sequence
 
 import pandas as pd
 
+from harness import executor
 from harness.arguments import add_common, add_jobs, add_levels, layout_of, name_list
 from harness.checks import CHECK_FLAGS, physical_checks
 from harness.errors import RunError, SceneError
@@ -116,6 +117,7 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
     parser.add_argument("--starts", type=name_list, default=list(STARTS), help=f"starts to run ({', '.join(STARTS)})")
     add_jobs(parser, default=2)
     add_common(parser, results=RESULTS)
+    executor.add_arguments(parser)
 
 
 def run(args: argparse.Namespace) -> int:
@@ -123,7 +125,9 @@ def run(args: argparse.Namespace) -> int:
     unknown = [s for s in args.starts if s not in STARTS]
     if unknown:
         raise SceneError(f"unknown start {unknown[0]!r} (known: {', '.join(STARTS)})")
-    rows = [branch_row(start, args.levels, layout, args.jobs, args.force) for start in args.starts]
+    with executor.from_args(args) as pool:  # each start's study a task on a Dask cluster
+        rows = executor.each(pool, lambda start: branch_row(start, args.levels, layout, args.jobs, args.force),
+                             args.starts)
     labels = same_branch(rows)
     for row in rows:
         row["branch"] = labels.get(row["start"], "")

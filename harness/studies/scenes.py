@@ -14,8 +14,9 @@ from typing import Any
 
 import pandas as pd
 
+from harness import executor
 from harness.arguments import add_common, add_levels, layout_of
-from harness.layout import REPO
+from harness.layout import REPO, Layout
 from harness.report import write_report
 from harness.scene import load_scene
 from harness.study import NORMED_FIELDS, Study, run_study
@@ -46,15 +47,23 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
     parser.add_argument("--cases", type=Path, default=REPO / "cases", help="folder of scene files")
     add_levels(parser, what="each scene's own")
     add_common(parser)
+    executor.add_arguments(parser)
+
+
+def scene_study(case: Path, levels: tuple[int, ...], layout: Layout, force: bool) -> Study:
+    """One scene's study (a task of its own on a cluster)."""
+    scene = load_scene(case)
+    print(f"== {scene.name}: {', '.join(scene.effects)}", file=sys.stderr, flush=True)
+    return run_study(scene, levels or scene.levels, layout, jobs=1, force=force)
 
 
 def run(args: argparse.Namespace) -> int:
     layout = layout_of(args)
     rows = []
-    for case in sorted(args.cases.glob("*.toml")):
-        scene = load_scene(case)
-        print(f"== {scene.name}: {', '.join(scene.effects)}", file=sys.stderr, flush=True)
-        study = run_study(scene, args.levels or scene.levels, layout, jobs=1, force=args.force)
+    with executor.from_args(args) as pool:  # the scenes side by side on a Dask cluster
+        studies = executor.each(pool, lambda case: scene_study(case, args.levels, layout, args.force),
+                                sorted(args.cases.glob("*.toml")))
+    for study in studies:
         write_report(study, layout)
         rows.append(scene_row(study))
     table = pd.DataFrame(rows)

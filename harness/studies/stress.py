@@ -34,6 +34,7 @@ from typing import Any, Sequence
 import numpy as np
 import pandas as pd
 
+from harness import executor
 from harness.arguments import add_common, add_levels, layout_of, level_list, name_list
 from harness.checks import CHECK_FLAGS, contact_nodes, physical_checks
 from harness.contract import Failure
@@ -226,6 +227,7 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
     parser.add_argument("--paper-levels", type=level_list, default=PAPER_LEVELS,
                         help="levels of the paper's iteration table (empty: skip it)")
     add_common(parser, results=RESULTS)
+    executor.add_arguments(parser)
 
 
 def case_files(names: Sequence[str]) -> list[Path]:
@@ -239,17 +241,26 @@ def case_files(names: Sequence[str]) -> list[Path]:
     return files
 
 
+def timed_case(case: Path, layout: Layout, force: bool, levels: Sequence[int] | None) -> tuple[CaseResult, float]:
+    start = time.perf_counter()
+    return run_case(case, layout, force, levels), time.perf_counter() - start
+
+
 def run(args: argparse.Namespace) -> int:
     layout = layout_of(args)
     freefem_version()
     rows = []
-    for case in case_files(args.cases):
-        start = time.perf_counter()
-        row = summary_row(run_case(case, layout, args.force, args.levels))
+    began = time.perf_counter()
+    with executor.from_args(args) as pool:  # each case a task, side by side, on a Dask cluster
+        results = executor.each(pool, lambda case: timed_case(case, layout, args.force, args.levels),
+                                case_files(args.cases))
+    for result, seconds in results:
+        row = summary_row(result)
         rows.append(row)
         print(f"{row['case']:<30} {row['status']:<15} n={row['n']:<3} its {row['iterations_per_level']:<14}"
-              f" checks {'pass' if row.get('checks_ok') else '-'}  ({time.perf_counter() - start:.1f} s)"
+              f" checks {'pass' if row.get('checks_ok') else '-'}  ({seconds:.1f} s)"
               + (f"  {row['note'][:100]}" if row["note"] else ""), flush=True)
+    print(f"{len(rows)} cases in {time.perf_counter() - began:.1f} s")
     table = pd.DataFrame(rows)
     if not args.cases and not args.levels:
         write_csv(table, args.results / "summary.csv")

@@ -1,0 +1,137 @@
+"""Past one machine, measured (`make scale`, `python -m harness scale`, into results/scale/): one solve on 1 and on 2
+MPI ranks (time, Krylov iterations, per-rank memory, agreement), and the stress suite
+in this process against a local Dask cluster (time, identical summaries).
+
+Small sizes by default (CPU is shared while developing); the issue's sizes on an idle
+machine: `make scale SCALE_FLAGS="--mpi-levels 64,256 --stress-levels="` (each stress case
+on its own levels).
+Every run is forced (no cache reuse), so the times are the runs' own.
+"""
+
+from __future__ import annotations
+
+import argparse
+import time
+from pathlib import Path
+from typing import Any, Sequence
+
+import numpy as np
+import pandas as pd
+
+from harness.arguments import level_list
+from harness.atomic import write_atomic
+from harness.errors import RunError
+from harness.executor import LevelChain, LocalExecutor
+from harness.layout import REPO, Layout
+from harness.scene import load_scene
+
+CASES = REPO / "cases"
+
+
+def read_state(path: Path) -> list[np.ndarray]:
+    """state.txt (output.idp): per field, a count then the values."""
+    tokens = path.read_text().split()
+    fields, i = [], 0
+    while i < len(tokens):
+        count = int(tokens[i])
+        fields.append(np.array(tokens[i + 1:i + 1 + count], dtype=float))
+        i += 1 + count
+    return fields
+
+
+def mpi_table(case: Path, levels: tuple[int, ...], ranks: Sequence[int], layout: Layout) -> pd.DataFrame:
+    """Each rank count's warm chain up to the finest level; one row per (level, ranks)."""
+    chain_levels = tuple(sorted({*(2 ** k for k in range(1, 12) if 2 ** k <= max(levels)), *levels}))
+    runs: dict[int, Any] = {}
+    for count in ranks:
+        scene = load_scene(case, [f"scene.name=scale_ranks{count}", f"run.ranks={count}"])
+        outcome = LocalExecutor(1).run([LevelChain(scene, chain_levels, layout, force=True)])[0]
+        if outcome.error:
+            raise RunError(outcome.error)
+        runs[count] = outcome.runs
+    rows = []
+    for n in levels:
+        base = runs[ranks[0]][n]
+        reference = read_state(base.directory / "state.txt")
+        for count in ranks:
+            run = runs[count][n]
+            record = run.record
+            parallel = record.parallel or {}
+            differences = [float(np.abs(a - b).max() / max(np.abs(a).max(), 1e-300))
+                           for a, b in zip(reference, read_state(run.directory / "state.txt"))]
+            per_rank = parallel.get("peak_rss_mb_per_rank", [record.peak_rss_mb])
+            wall = parallel.get("wall", {})
+            rows.append({
+                "n": n, "ranks": count, "dofs": record.dofs,
+                "newton_iterations": record.newton_iterations,
+                "krylov_iterations": " ".join(str(k) for k in (record.linear_iterations or [])[1:]),
+                "factorisations": record.factorisations,
+                "wall_s": record.wall_s,
+                "solve_wall_s": wall.get("total_s", record.wall_s),
+                "factorisation_s": wall.get("factorisation_s", record.factorisation_s),
+                "krylov_s": wall.get("krylov_s", record.solve_s),
+                "peak_rss_mb_max_rank": max(per_rank),
+                "peak_rss_mb_per_rank": " ".join(f"{m:.1f}" for m in per_rank),
+                "memory_vs_1_rank": max(per_rank) / max(base.record.peak_rss_mb or 1.0, 1e-9),
+                "max_rel_diff_vs_1_rank": max(differences),
+                "linear_solver": record.linear_solver,
+            })
+    return pd.DataFrame(rows)
+
+
+def stress_table(levels: tuple[int, ...], cluster: str, root: Path) -> pd.DataFrame:
+    """The stress suite (cases/hard/, each case a chain, all forced) in this process as by
+    default, and on the Dask cluster: wall time, and whether the summaries are equal but for
+    the machine's measurements (times, memory) and the results path in the notes."""
+    from harness import executor as executors
+    from harness.studies.stress import case_files, run_case, summary_row
+
+    rows, tables = [], {}
+    for label, how in (("default (this process)", None), (f"dask {cluster}", cluster)):
+        layout = Layout(results=root / label.split()[0])
+        chosen = argparse.Namespace(scheduler=None, cluster=how)
+        start = time.perf_counter()
+        with executors.from_args(chosen) as pool:
+            results = executors.each(pool, lambda case: run_case(case, layout, True, levels or None), case_files([]))
+        wall = time.perf_counter() - start
+        table = pd.DataFrame([summary_row(result) for result in results])
+        measured = [c for c in table.columns if "wall" in c or "rss" in c]
+        tables[label] = table.drop(columns=measured).replace(str(layout.results), "<results>", regex=True) \
+            .to_csv(float_format="%.10g")
+        rows.append({"executor": label, "cases": len(results), "levels": " ".join(map(str, levels)) or "the cases'",
+                     "wall_s": wall})
+    table = pd.DataFrame(rows)
+    first = next(iter(tables.values()))
+    table["summary_equal_to_default"] = [t == first for t in tables.values()]
+    table["time_vs_default"] = table["wall_s"] / table["wall_s"].iloc[0]
+    return table
+
+
+def markdown(table: pd.DataFrame) -> str:
+    cells = [[f"{v:.4g}" if isinstance(v, float) else str(v) for v in row] for row in table.itertuples(index=False)]
+    lines = ["| " + " | ".join(table.columns) + " |", "|" + "---|" * len(table.columns)]
+    return "\n".join(lines + ["| " + " | ".join(row) + " |" for row in cells]) + "\n"
+
+
+def add_arguments(parser: argparse.ArgumentParser) -> None:
+    parser.add_argument("--mpi-levels", type=level_list, default=(16, 32), help="levels solved on 1 and 2 ranks")
+    parser.add_argument("--stress-levels", type=level_list, default=(2, 4),
+                        help="levels of every stress case (empty: each case's own)")
+    parser.add_argument("--cluster", default="local:2", help="the Dask cluster of the stress run")
+    parser.add_argument("--results", type=Path, default=Layout().results, help="results root")
+
+
+def run(args: argparse.Namespace) -> int:
+    out = args.results / "scale"
+    out.mkdir(parents=True, exist_ok=True)
+    work = Layout(results=out / "runs")
+    mpi = mpi_table(CASES / "paper.toml", args.mpi_levels, (1, 2), work)
+    study = stress_table(args.stress_levels, args.cluster, out / "runs" / "stress")
+    write_atomic(out / "mpi.csv", mpi.to_csv(index=False, float_format="%.6g"))
+    write_atomic(out / "stress.csv", study.to_csv(index=False, float_format="%.6g"))
+    write_atomic(out / "scale.md", "## One solve on 1 and 2 MPI ranks (paper scene)\n\n" + markdown(mpi)
+                 + "\n## The stress suite in this process and on a Dask cluster\n\n" + markdown(study))
+    print(markdown(mpi))
+    print(markdown(study))
+    print(f"wrote {out}/mpi.csv, stress.csv, scale.md")
+    return 0

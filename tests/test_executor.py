@@ -1,0 +1,170 @@
+"""Studies on a real local Dask cluster (2 worker processes) against this machine: the same
+tables for levels 2-8 of two scenes, and a worker killed mid-study still ends complete and
+correct or with a clear error."""
+
+from __future__ import annotations
+
+import os
+import signal
+import threading
+from pathlib import Path
+
+import pytest
+
+from harness.errors import SceneError
+from harness.executor import LevelChain, LocalExecutor, executor, parse_cluster
+from harness.layout import Layout
+from harness.scene import load_scene
+from harness.study import error_table
+
+pytest.importorskip("distributed", reason="dask/distributed missing (the 'cluster' extra; `make test` installs it)")
+
+CASES = Path(__file__).parents[1] / "cases"
+SCENES = ("paper", "elastic")
+LEVELS = (2, 4, 8)
+
+
+def chains(results: Path) -> list[LevelChain]:
+    return [LevelChain(load_scene(CASES / f"{name}.toml"), LEVELS, Layout(results=results)) for name in SCENES]
+
+
+def tables(outcomes) -> dict[str, str]:
+    """Each scene's study table as the study writes its CSV (report.py: 10 significant
+    digits), less the wall times (which no two runs share). Full precision would compare
+    round-off: a pipelined and a non-pipelined run of one level differ by ~1e-14 relative
+    (measured: longcontact n = 16), presumably the sparse solver's alignment-dependent
+    kernels."""
+    out = {}
+    for outcome in outcomes:
+        assert outcome.error is None, outcome.error
+        assert sorted(outcome.runs) == list(LEVELS)
+        fields = tuple(outcome.runs[LEVELS[-1]].record.fields)
+        out[outcome.chain.scene.name] = error_table(outcome.runs, fields).drop(columns=["wall_s"]).to_csv(float_format="%.10g")
+    return out
+
+
+@pytest.fixture(scope="module")
+def dask():
+    """One real local cluster (2 worker processes) for the tests that kill no worker."""
+    with executor(1, cluster="local:2") as running:
+        yield running
+
+
+@pytest.fixture(scope="module")
+def local_tables(tmp_path_factory) -> dict[str, str]:
+    return tables(LocalExecutor(2).run(chains(tmp_path_factory.mktemp("local"))))
+
+
+def test_a_local_dask_cluster_gives_the_local_tables(dask, local_tables, tmp_path):
+    lines: list[str] = []
+    assert len(dask.client.scheduler_info()["workers"]) == 2
+    outcomes = dask.run(chains(tmp_path), lines.append)
+    assert tables(outcomes) == local_tables
+    assert len(lines) == len(SCENES) * len(LEVELS) and all("(Dask)" in line for line in lines)
+    # Every level was run by a worker into the shared results tree, nothing reused.
+    assert all((tmp_path / s / f"n{n}" / "run.json").is_file() for s in SCENES for n in LEVELS)
+
+
+def test_a_worker_killed_mid_study_ends_complete_or_with_a_clear_error(local_tables, tmp_path):
+    with executor(1, cluster="local:2") as dask:
+        pids = list(dask.client.run(os.getpid).values())
+        killed = threading.Event()
+
+        def kill_one(line: str) -> None:
+            if not killed.is_set():  # after the first level: the rest are queued or running
+                killed.set()
+                os.kill(pids[0], signal.SIGKILL)
+
+        outcomes = dask.run(chains(tmp_path), kill_one)
+    assert killed.is_set()
+    errors = [o.error for o in outcomes if o.error]
+    if not errors:  # the scheduler reran the lost tasks on the other (or restarted) worker
+        assert tables(outcomes) == local_tables
+    else:
+        assert all("\n" not in e and "n=" in e for e in errors), errors
+
+
+@pytest.mark.parametrize("text", ["local", "local:0", "remote:2", "local:x"])
+def test_cluster_flag_must_be_local_with_a_count(text):
+    with pytest.raises(SceneError, match="local:N"):
+        parse_cluster(text)
+    assert parse_cluster("local:3") == 3
+
+
+def test_scheduler_and_cluster_exclude_each_other():
+    with pytest.raises(SceneError, match="not both"):
+        with executor(1, scheduler="tcp://127.0.0.1:1", cluster="local:2"):
+            pass
+
+
+def square(k: int) -> int:
+    return k * k
+
+
+def test_map_runs_pieces_side_by_side_in_order_on_both_executors(dask):
+    work = [lambda k=k: square(k) for k in range(5)]
+    assert LocalExecutor(2).map(work) == [0, 1, 4, 9, 16]
+    assert dask.map(work) == [0, 1, 4, 9, 16]
+    with pytest.raises(SceneError, match="local:N"):
+        dask.map([lambda: parse_cluster("bad")])
+
+
+def test_two_workers_running_the_same_levels_at_once_leave_one_complete_result(dask, tmp_path):
+    """Both workers run (forced) the same chain into one results tree: each level is swapped
+    in whole, so the survivor is complete, passes its checksums and is reused afterwards."""
+    from harness.cache import corrupted
+
+    layout = Layout(results=tmp_path)
+    scene = load_scene(CASES / "paper.toml")
+    twin = [LevelChain(scene, (2, 4), layout, force=True), LevelChain(scene, (2, 4), layout, force=True)]
+    outcomes = dask.run(twin)
+    assert all(o.error is None and sorted(o.runs) == [2, 4] for o in outcomes)
+    for n in (2, 4):
+        assert corrupted(tmp_path / "paper" / f"n{n}") is None
+    assert not list((tmp_path / "paper").glob(".tmp-*")) and not list((tmp_path / "paper").glob(".old-*"))
+    again = LocalExecutor(1).run([LevelChain(scene, (2, 4), layout)])[0]
+    assert again.error is None and all(run.reused for run in again.runs.values())
+
+
+def test_scenes_study_on_a_local_cluster_writes_the_local_csvs(tmp_path):
+    """`python -m harness scenes --cluster local:2` on two scenes, levels 2-8: each scene's
+    convergence.csv and the summary equal the local run's but for the measurements of the
+    machine (wall times, peak memory)."""
+    import pandas as pd
+
+    from harness.cli import main
+
+    cases = tmp_path / "cases"
+    cases.mkdir()
+    for name in SCENES:
+        (cases / f"{name}.toml").write_text((CASES / f"{name}.toml").read_text())
+    common = ["scenes", "--cases", str(cases), "--levels", "2,4,8"]
+    assert main([*common, "--results", str(tmp_path / "local")]) == 0
+    assert main([*common, "--results", str(tmp_path / "dask"), "--cluster", "local:2"]) == 0
+
+    def csv(path: Path) -> str:
+        table = pd.read_csv(path)
+        measured = [c for c in table.columns if "wall" in c or "rss" in c]
+        return table.drop(columns=measured).to_csv(float_format="%.10g")
+
+    for name in SCENES:
+        assert csv(tmp_path / "dask" / name / "convergence.csv") == csv(tmp_path / "local" / name / "convergence.csv")
+    assert csv(tmp_path / "dask" / "scenes" / "summary.csv") == csv(tmp_path / "local" / "scenes" / "summary.csv")
+
+
+def test_stress_on_an_existing_scheduler_by_address(tmp_path, capsys):
+    """--scheduler tcp://...: a scheduler someone else started (here a local one)."""
+    import dask
+    from distributed import LocalCluster
+
+    from harness.cli import main
+
+    argv = ["stress", "--cases", "coarsest,gap_open", "--levels", "2", "--paper-levels", "", "--force"]
+    with dask.config.set({"distributed.worker.daemon": False}), \
+            LocalCluster(n_workers=2, threads_per_worker=1, dashboard_address=":0") as cluster:
+        assert main([*argv, "--results", str(tmp_path / "dask"), "--scheduler", cluster.scheduler_address]) == 0
+    dask_out = capsys.readouterr().out
+    assert main([*argv, "--results", str(tmp_path / "local")]) == 0
+    local_out = capsys.readouterr().out
+    lines = lambda out: sorted(line.split("(")[0].strip() for line in out.splitlines() if " n=" in line)  # noqa: E731
+    assert lines(dask_out) == lines(local_out) and len(lines(local_out)) == 2

@@ -1,0 +1,129 @@
+"""One level on two MPI ranks (freefem/parallel.idp, harness/launcher.py) against one rank:
+the same solution to within the Newton tolerance, Gamma_3 cut by the decomposition, the
+parallel figures in run.json; and the launcher's pieces without MPI."""
+
+from __future__ import annotations
+
+import json
+import shutil
+from pathlib import Path
+
+import numpy as np
+import pytest
+
+from harness.errors import SceneError
+from harness.launcher import IDP_PATH, MPI_PLUGIN_PATH, Ranks, merge_records, without_newton_steps
+from harness.scene import load_scene
+from physics_runs import CASES, solve
+
+RTOL = 1e-9  # cases/paper.toml's newton.rtol: each field's relative increment at the stop
+
+
+def mpi_missing() -> str:
+    """Why MPI cannot start here ('' when it can)."""
+    if shutil.which("ff-mpirun") is None or shutil.which("FreeFem++-mpi") is None:
+        return "no ff-mpirun / FreeFem++-mpi on PATH"
+    if not (Path(IDP_PATH) / "macro_ddm.idp").is_file():
+        return f"no {IDP_PATH}/macro_ddm.idp (Debian's libfreefem++-dev; `make freefem` installs it)"
+    if not (Path(MPI_PLUGIN_PATH) / "gmsh.so").is_file():
+        return f"no MPI plugins in {MPI_PLUGIN_PATH}"
+    return ""
+
+
+def read_state(path: Path) -> list[np.ndarray]:
+    """state.txt: per field, a count then the values (FreeFEM's array output)."""
+    tokens = path.read_text().split()
+    fields, i = [], 0
+    while i < len(tokens):
+        count = int(tokens[i])
+        fields.append(np.array(tokens[i + 1:i + 1 + count], dtype=float))
+        i += 1 + count
+    return fields
+
+
+@pytest.mark.skipif(bool(mpi_missing()), reason=mpi_missing() or "-")
+def test_two_ranks_give_the_one_rank_solution_on_the_paper_scene(tmp_path):
+    results = tmp_path / "results"
+    one = solve(CASES / "paper.toml", 8, results, "scene.name=one")
+    two = solve(CASES / "paper.toml", 8, results, "scene.name=two", "run.ranks=2")
+    for name, a, b in zip(("u", "phi", "theta"), read_state(results / "one/n8/state.txt"),
+                          read_state(results / "two/n8/state.txt")):
+        assert a.shape == b.shape
+        assert np.abs(a - b).max() <= RTOL * np.abs(a).max(), name
+    parallel = two.record.parallel
+    assert two.record.ranks == 2 and parallel["ranks"] == 2
+    # The decomposition cuts Gamma_3 (17 nodes at n = 8): both ranks own some of it, and the
+    # partition-of-unity counts add up to the one-rank active set.
+    shares = parallel["contact_nodes_per_rank"]
+    assert min(shares) >= 1 and sum(shares) == pytest.approx(17, abs=1e-12)
+    assert two.record.active_nodes[-1] == one.record.active_nodes[-1]
+    assert two.record.contact_force == pytest.approx(one.record.contact_force, rel=1e-8)
+    assert len(parallel["peak_rss_mb_per_rank"]) == 2 and min(parallel["peak_rss_mb_per_rank"]) > 0
+    its = parallel["krylov_iterations"]
+    assert len(its) == two.record.newton_iterations + 1 and all(k > 0 for k in its[1:])
+    assert set(parallel["wall"]) >= {"decompose_s", "assembly_s", "factorisation_s", "krylov_s", "total_s"}
+    # The sequential pass reads the gathered state's residual: a converged state there too.
+    assert max(r[0] for r in two.record.post_pass_residuals.values()) < 1e-12
+
+
+def test_launcher_command_puts_the_script_after_the_launcher():
+    argv = Ranks(4, "srun -n {ranks} FreeFem++-mpi").argv(Path("/w/main.edp"), ["-n", "8"])
+    assert argv == ["srun", "-n", "4", "FreeFem++-mpi", "main.edp", "-nw", "-v", "0", "-n", "8"]
+    with pytest.raises(SceneError, match="run.launcher"):
+        Ranks(2, "mpirun -np {nranks}").argv(Path("main.edp"), [])
+
+
+def test_post_pass_takes_no_newton_step_and_keeps_every_other_option():
+    options = ["-n", "8", "-newton.max_iterations", "40", "-newton.rtol", "1e-09"]
+    assert without_newton_steps(options) == ["-n", "8", "-newton.max_iterations", "0", "-newton.rtol", "1e-09"]
+    assert without_newton_steps(["-n", "8"]) == ["-n", "8", "-newton.max_iterations", "0"]
+
+
+def test_merged_record_takes_newton_history_from_the_ranks_and_checks_from_the_pass():
+    post = {"converged": False, "reason": "max_iterations", "newton_iterations": 0, "checks": {"x": 1},
+            "residuals": {"u": [1e-15]}, "peak_rss_mb": 90.0}
+    parallel = {"ranks": 2, "converged": True, "reason": "converged", "newton_iterations": 3,
+                "residuals": {"u": [1.0, 1e-3, 1e-8, 1e-15]}, "krylov_iterations": [0, 30, 29, 29],
+                "peak_rss_mb_per_rank": [40.0, 45.0], "factorisations": 1, "krylov": "GMRES"}
+    merged = merge_records(post, parallel)
+    assert merged["converged"] is True and merged["newton_iterations"] == 3
+    assert merged["checks"] == {"x": 1} and merged["post_pass_residuals"] == {"u": [1e-15]}
+    assert merged["peak_rss_mb"] == 45.0 and merged["gmres_iterations"] == 88
+    assert merged["parallel"]["peak_rss_mb_per_rank"] == [40.0, 45.0]
+
+
+@pytest.mark.parametrize("override, message", [
+    ("scene.element=P2", "P1"),
+    ("scene.coarsest_guess=pressed", "pressed"),
+])
+def test_what_the_ranks_cannot_do_is_refused_before_running(override, message, tmp_path):
+    from harness.launcher import check_parallel
+    scene = load_scene(CASES / "paper.toml", ["run.ranks=2", override])
+    with pytest.raises(SceneError, match=message):
+        check_parallel(scene)
+    check_parallel(load_scene(CASES / "paper.toml", [override]))  # one rank: anything goes
+
+
+def test_ranks_must_be_positive():
+    with pytest.raises(SceneError, match="ranks"):
+        load_scene(CASES / "paper.toml", ["run.ranks=0"])
+    assert json.loads(json.dumps(load_scene(CASES / "paper.toml").table["run"]))["ranks"] == 1
+
+
+def test_a_missing_launcher_is_one_error_line(tmp_path, capsys):
+    from harness.cli import main
+    code = main(["solve", str(CASES / "paper.toml"), "--n", "2", "--results", str(tmp_path),
+                 "--set", "run.ranks=2", "--set", "run.launcher=no-such-mpirun -np {ranks}"])
+    err = capsys.readouterr().err.strip().splitlines()
+    assert code == 4 and len(err) == 1 and err[0].startswith("error: no-such-mpirun not found"), err
+
+
+@pytest.mark.skipif(bool(mpi_missing()), reason=mpi_missing() or "-")
+def test_a_run_on_other_ranks_is_not_reused(tmp_path):
+    results = tmp_path / "results"
+    two = solve(CASES / "paper.toml", 2, results, "run.ranks=2")
+    three = solve(CASES / "paper.toml", 2, results, "run.ranks=3")
+    again = solve(CASES / "paper.toml", 2, results, "run.ranks=3")
+    assert (two.record.ranks, three.record.ranks, again.record.ranks) == (2, 3, 3)
+    assert len(three.record.parallel["peak_rss_mb_per_rank"]) == 3
+    assert again.record.wall_s == three.record.wall_s  # reused: the same run.json
