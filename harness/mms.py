@@ -70,6 +70,8 @@ class Exact:
 
 def parse_exact(texts: Mapping[str, str], dimension: int = 2) -> Exact:
     """Case-file strings (sympy syntax, `**` for powers) to expressions; a blank one is 0."""
+    if dimension == 2 and texts.get("u3", "").strip():
+        raise SceneError("manufactured.u3 is for a box scene (3D); a 2D scene has u1 and u2 only")
     fields = {}
     for key in EXACT_KEYS:
         text = texts.get(key, "").strip() or "0"
