@@ -115,3 +115,43 @@ def write_msh(mesh: BoxMesh, path: Path) -> None:
     cells = [("triangle", mesh.triangles), ("tetra", mesh.tetrahedra)]
     data = {"gmsh:physical": [mesh.labels, body], "gmsh:geometrical": [mesh.labels, body]}
     meshio.write(path, meshio.Mesh(mesh.points, cells, cell_data=data), file_format="gmsh22", binary=False)
+
+
+def kuhn_weights(points: np.ndarray, grid: np.ndarray, spacing: float, at: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    """P1 interpolation on a Kuhn mesh: for each point of `at` (K, 3), the 4 nodes of the
+    tetrahedron that holds it (indices into `points`) and its barycentric weights.
+
+    In the cube with lowest corner c and local coordinates t in [0, 1]^3, the tetrahedron
+    is the one with t_a >= t_b >= t_c (kuhn_box walks from c along a, then b, then c), and
+    the weights of its vertices c, c + e_a, c + e_a + e_b, c + 1 are 1 - t_a, t_a - t_b,
+    t_b - t_c, t_c. `grid` maps integer grid coordinates to point indices (-1: none).
+    """
+    scaled = at / spacing
+    cube = np.clip(np.floor(scaled + 1e-9).astype(np.int64), 0, np.array(grid.shape) - 2)
+    t = scaled - cube
+    order = np.argsort(-t, axis=1, kind="stable")
+    ts = np.take_along_axis(t, order, axis=1)
+    weights = np.column_stack([1.0 - ts[:, 0], ts[:, 0] - ts[:, 1], ts[:, 1] - ts[:, 2], ts[:, 2]])
+    corner = cube.copy()
+    nodes = [grid[corner[:, 0], corner[:, 1], corner[:, 2]]]
+    rows = np.arange(len(at))
+    for step in range(3):
+        corner[rows, order[:, step]] += 1
+        nodes.append(grid[corner[:, 0], corner[:, 1], corner[:, 2]])
+    nodes = np.column_stack(nodes)
+    if np.any(nodes < 0):
+        raise MeshError("kuhn_weights: a point's tetrahedron has a vertex missing from the coarse grid")
+    return nodes, weights
+
+
+def grid_index(points: np.ndarray) -> tuple[np.ndarray, float]:
+    """The structured grid of a Kuhn mesh's points: integer coordinates -> point index, and h."""
+    xs = np.unique(np.round(points[:, 0], 12))
+    spacing = float(np.min(np.diff(xs)))
+    ijk = np.rint(points / spacing).astype(np.int64)
+    # (solution.vtu stores coordinates in single precision: snap within 1e-3 h)
+    if np.max(np.abs(ijk * spacing - points)) > 1e-3 * spacing:
+        raise MeshError("grid_index: the points are not on a grid of spacing h")
+    grid = np.full(tuple(ijk.max(axis=0) + 1), -1, dtype=np.int64)
+    grid[ijk[:, 0], ijk[:, 1], ijk[:, 2]] = np.arange(len(points))
+    return grid, spacing

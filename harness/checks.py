@@ -59,6 +59,9 @@ def contact_nodes(scene: Scene, fields: Fields) -> list[np.ndarray]:
 
 
 def contact_length(scene: Scene) -> float:
+    """|Gamma_3|: a length in 2D, an area for a box (harness/box.py)."""
+    if scene.dimension == 3:
+        return scene.geometry.role_areas().get("contact", 0.0)
     return sum(seg.length for seg in scene.geometry.bottom + scene.geometry.top if seg.role == "contact")
 
 
@@ -82,7 +85,7 @@ def physical_checks(record: RunRecord, scene: Scene) -> dict[str, Any]:
     c = record.checks or {}
     tol = {name: value for name, (value, _) in TOLERANCES.items()}
     length = contact_length(scene)
-    applied = float(np.hypot(*c.get("applied_load", [0.0, 0.0])))
+    applied = float(np.linalg.norm(c.get("applied_load", [0.0, 0.0])))
     sigma_scale = max(abs(c.get("max_sigma_nu", 0.0)), abs(c.get("min_sigma_nu", 0.0)), applied / max(length, 1e-300))
     S = c.get("S", math.inf)
     tau = c.get("max_abs_sigma_tau", 0.0)

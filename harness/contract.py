@@ -12,14 +12,19 @@ import sys
 from pathlib import Path
 
 # Boundary roles -> the integer tag gmsh writes and FreeFEM reads (physical curves/surfaces).
-ROLE_LABELS: dict[str, int] = {"clamped": 1, "loaded": 2, "free": 3, "contact": 4}
+ROLE_LABELS: dict[str, int] = {"clamped": 1, "loaded": 2, "free": 3, "contact": 4,
+                               "roller_x": 5, "roller_y": 6, "roller_z": 7}
 # The FreeFEM name of each label (identifiers cannot contain '_').
-ROLE_MACROS: dict[str, str] = {"clamped": "labClamped", "loaded": "labLoaded", "free": "labFree", "contact": "labContact"}
+ROLE_MACROS: dict[str, str] = {"clamped": "labClamped", "loaded": "labLoaded", "free": "labFree", "contact": "labContact",
+                               "roller_x": "labRollerX", "roller_y": "labRollerY", "roller_z": "labRollerZ"}
 ROLE_MEANING: dict[str, str] = {
     "clamped": "Gamma_1 = Gamma_a: u = 0, phi = 0, theta = 0",
     "loaded": "Gamma_2 = Gamma_b with traction f2: theta = 0",
     "free": "Gamma_2 = Gamma_b, zero traction: theta = 0",
     "contact": "Gamma_3: contact with the conductive foundation",
+    "roller_x": "a side normal to x: u_x = 0, zero tangential traction, natural phi and theta",
+    "roller_y": "a side normal to y: u_y = 0, zero tangential traction, natural phi and theta",
+    "roller_z": "a side normal to z (3D): u_z = 0, zero tangential traction, natural phi and theta",
 }
 
 

@@ -1,4 +1,4 @@
-"""Read a FreeFEM solution.vtu: P1 nodal fields on a triangle mesh, by name."""
+"""Read a FreeFEM solution.vtu: P1 nodal fields on a triangle (2D) or tetrahedral (3D) mesh, by name."""
 
 from __future__ import annotations
 
@@ -17,6 +17,12 @@ class Fields:
     triangles: np.ndarray  # (M, 3)
     values: dict[str, np.ndarray]  # name -> (N,) scalar or (N, 2) vector
     source: Path
+    tetrahedra: np.ndarray | None = None  # (M, 4) of a 3D solution; points are then (N, 3)
+
+    @property
+    def cells(self) -> np.ndarray:
+        """The mesh's simplices: tetrahedra in 3D, triangles in 2D."""
+        return self.triangles if self.tetrahedra is None else self.tetrahedra
 
     def field(self, name: str) -> np.ndarray:
         if name not in self.values:
@@ -31,6 +37,11 @@ def read_fields(path: Path) -> Fields:
         mesh = meshio.read(path)
     except Exception as exc:  # meshio raises several unrelated types for a broken file
         raise FieldsError(f"cannot read {path}: {exc}") from None
+    tetrahedra = [block.data for block in mesh.cells if block.type == "tetra"]
+    if tetrahedra:
+        values = {name: np.asarray(data, dtype=float) for name, data in mesh.point_data.items()}
+        values = {name: v[:, 0] if v.ndim == 2 and v.shape[1] == 1 else v for name, v in values.items()}
+        return Fields(mesh.points.copy(), np.zeros((0, 3), dtype=int), values, path, np.concatenate(tetrahedra))
     triangles = [block.data for block in mesh.cells if block.type == "triangle"]
     if not triangles:
         raise FieldsError(f"{path}: no triangles")

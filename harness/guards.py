@@ -104,18 +104,17 @@ def need_disk(directory: Path, size: int, what: str) -> None:
                                f"about {size / 1e6:.3g} MB needed, {free / 1e6:.3g} MB free")
 
 
-def max_displacement_gradient(points: np.ndarray, triangles: np.ndarray, u: np.ndarray) -> float:
-    """Largest entry of grad u over P1 triangles (constant on each): a bound on both the
-    strain and the rotation."""
-    p = points[triangles][:, :, :2]
-    e1, e2 = p[:, 1] - p[:, 0], p[:, 2] - p[:, 0]
-    det = e1[:, 0] * e2[:, 1] - e1[:, 1] * e2[:, 0]
-    du = u[triangles][:, :, :2]
-    d1, d2 = du[:, 1] - du[:, 0], du[:, 2] - du[:, 0]
-    # grad u_i = [[e2y, -e1y], [-e2x, e1x]] / det applied to (d1_i, d2_i)
-    gx = (d1 * e2[:, 1:2] - d2 * e1[:, 1:2]) / det[:, None]
-    gy = (d2 * e1[:, 0:1] - d1 * e2[:, 0:1]) / det[:, None]
-    return float(max(np.abs(gx).max(initial=0.0), np.abs(gy).max(initial=0.0)))
+def max_displacement_gradient(points: np.ndarray, cells: np.ndarray, u: np.ndarray) -> float:
+    """Largest entry of grad u over P1 simplices (triangles or tetrahedra; constant on each):
+    a bound on both the strain and the rotation."""
+    d = cells.shape[1] - 1
+    p = points[cells][:, :, :d]
+    edges = p[:, 1:] - p[:, :1]                     # (M, d, d): rows are edge vectors
+    du = u[cells][:, :, :d]
+    jumps = du[:, 1:] - du[:, :1]                   # (M, d, d): u along each edge
+    # edges @ grad = jumps, grad[k, i] = d u_i / d x_k
+    grad = np.linalg.solve(edges, jumps) if len(cells) else np.zeros((0, d, d))
+    return float(np.abs(grad).max(initial=0.0))
 
 
 def small_strain_warning(gradient: float, where: str) -> str | None:

@@ -21,6 +21,8 @@ from harness.guards import mesh_file_bytes, need_disk
 from harness.mesh_check import MeshSummary, check_mesh
 from harness.schema import ROLE_LABELS
 from harness.segments import Geometry
+from harness.box import Box
+from harness import box_mesh
 
 # gmsh's transfinite arrangement that cuts each cell along the requested diagonal.
 ARRANGEMENT = {"SW-NE": "Right", "NW-SE": "Left"}
@@ -32,9 +34,11 @@ def mesh_path(directory: Path, n: int) -> Path:
     return directory / f"mesh_n{n}.msh"
 
 
-def build_mesh(geometry: Geometry, n: int, directory: Path) -> MeshSummary:
+def build_mesh(geometry: Geometry | Box, n: int, directory: Path) -> MeshSummary:
     """Write mesh_n<n>.msh into `directory` (only replacing it if the bytes change) and
     return its checked summary."""
+    if isinstance(geometry, Box):
+        return build_box_mesh(geometry, n, directory)
     unstructured = geometry.diagonals == "unstructured"
     cells = {} if unstructured else grid_cells(geometry, n)
     directory.mkdir(parents=True, exist_ok=True)
@@ -182,6 +186,35 @@ def distort(n: int, fraction: float = 0.3) -> None:
         moved[bad] = xyz[bad]
     for i in inner:
         gmsh.model.mesh.setNode(int(tags[i]), moved[i].tolist(), [])
+
+
+def build_box_mesh(box: Box, n: int, directory: Path) -> MeshSummary:
+    """The Kuhn tetrahedral mesh of a box scene (harness/box_mesh.py), checked: the area of
+    each role's triangles equals its patches' area (role_lengths holds areas in 3D)."""
+    mesh = box_mesh.kuhn_box(box.lengths, n, box.role_of)
+    areas = dict.fromkeys(ROLE_LABELS, 0.0)
+    p = mesh.points[mesh.triangles]
+    tri_area = 0.5 * np.linalg.norm(np.cross(p[:, 1] - p[:, 0], p[:, 2] - p[:, 0]), axis=1)
+    for role, label in ROLE_LABELS.items():
+        areas[role] = float(tri_area[mesh.labels == label].sum())
+    areas = {role: a for role, a in areas.items() if a > 0}
+    expected = box.role_areas()
+    for role in set(areas) | set(expected):
+        if not np.isclose(areas.get(role, 0.0), expected.get(role, 0.0), rtol=1e-9, atol=1e-12):
+            raise MeshError(f"mesh n={n}: role {role} covers {areas.get(role, 0.0):.6g}, its patches {expected.get(role, 0.0):.6g}")
+    directory.mkdir(parents=True, exist_ok=True)
+    target = mesh_path(directory, n)
+    need_disk(directory, mesh_file_bytes(box, n), f"the mesh of n={n}")
+    tmp = sibling_temp(target).with_suffix(".msh")
+    try:
+        box_mesh.write_msh(mesh, tmp)
+        if not target.exists() or target.read_bytes() != tmp.read_bytes():
+            os.replace(tmp, target)
+    except OSError as exc:
+        raise fault(exc, f"mesh of n={n}") from None
+    finally:
+        tmp.unlink(missing_ok=True)
+    return MeshSummary(path=target, n=n, nodes=len(mesh.points), triangles=len(mesh.tetrahedra), role_lengths=areas)
 
 
 def graded_coordinate(t: np.ndarray, focus: Sequence[float], power: float) -> np.ndarray:

@@ -33,10 +33,20 @@ from harness import freefem
 from harness.errors import RunError, SceneError
 from harness.layout import Layout
 
-X, Y = sympy.symbols("x y", real=True)
-EXACT_KEYS = ("u1", "u2", "phi", "theta")
+X, Y, Z = sympy.symbols("x y z", real=True)
+EXACT_KEYS = ("u1", "u2", "u3", "phi", "theta")  # u3: a box scene's (3D) only
 CONSTANTS = ("f11", "f13", "f33", "f44", "e31", "e33", "e15", "b11", "b33",
              "m11", "m33", "p1", "p3", "k11", "k33")
+# The out-of-plane constants of the 3D law (freefem/constitutive.idp, material.idp).
+CONSTANTS_3D = ("fC12", "fC22", "fC23", "f2323", "f1212", "e24", "e32", "b22", "m22", "p2", "k22")
+# The law of a ceramic poled along 3 (class 6mm) in Voigt form (order 11 22 33 23 13 12,
+# engineering shears), as freefem/constitutive.idp writes it: C_IJ, e_kI by constant name.
+VOIGT_PAIRS = {1: (1, 1), 2: (2, 2), 3: (3, 3), 4: (2, 3), 5: (1, 3), 6: (1, 2)}
+ELASTIC = {(1, 1): "f11", (1, 2): "fC12", (1, 3): "f13", (2, 2): "fC22", (2, 3): "fC23", (3, 3): "f33",
+           (4, 4): "f2323", (5, 5): "f44", (6, 6): "f1212"}
+PIEZO = {(1, 5): "e15", (2, 4): "e24", (3, 1): "e31", (3, 2): "e32", (3, 3): "e33"}
+# Material axis -> coordinate: axis 3 (poling) is y in 2D (plane strain in the 1-3 plane), z in 3D.
+AXES = {2: {1: X, 3: Y}, 3: {1: X, 2: Y, 3: Z}}
 # The contract with freefem/ (macro name -> derived quantity), all in x, y and SI units.
 MACROS = {
     "mmsU1": "u1", "mmsU2": "u2", "mmsPhi": "phi", "mmsTheta": "theta",
@@ -55,50 +65,100 @@ class Exact:
     u2: sympy.Expr
     phi: sympy.Expr
     theta: sympy.Expr
+    u3: sympy.Expr = sympy.Integer(0)
 
 
-def parse_exact(texts: Mapping[str, str]) -> Exact:
+def parse_exact(texts: Mapping[str, str], dimension: int = 2) -> Exact:
     """Case-file strings (sympy syntax, `**` for powers) to expressions; a blank one is 0."""
+    if dimension == 2 and texts.get("u3", "").strip():
+        raise SceneError("manufactured.u3 is for a box scene (3D); a 2D scene has u1 and u2 only")
     fields = {}
     for key in EXACT_KEYS:
         text = texts.get(key, "").strip() or "0"
         try:
-            expr = sympy.sympify(text, locals={"x": X, "y": Y}, rational=True)
+            expr = sympy.sympify(text, locals={"x": X, "y": Y, "z": Z}, rational=True)
         except (sympy.SympifyError, SyntaxError, TypeError) as exc:
             raise SceneError(f"manufactured.{key} = {text!r} is not an expression: {exc}") from None
-        stray = expr.free_symbols - {X, Y}
+        stray = expr.free_symbols - set(AXES[dimension].values())
         if stray:
-            raise SceneError(f"manufactured.{key} = {text!r} uses {sorted(map(str, stray))}; only x and y may appear")
+            allowed = "x and y" if dimension == 2 else "x, y and z"
+            raise SceneError(f"manufactured.{key} = {text!r} uses {sorted(map(str, stray))}; only {allowed} may appear")
         fields[key] = expr
     return Exact(**fields)
 
 
-def derive(exact: Exact, constants: Mapping[str, float], effects: tuple[str, ...]) -> dict[str, sympy.Expr]:
-    """Exact fields, fluxes and sources (keys of MACROS' values) for the effects switched on."""
-    c = {k: sympy.Float(constants[k]) if k in constants else sympy.Symbol(k) for k in CONSTANTS}
+def derive(exact: Exact, constants: Mapping[str, float], effects: tuple[str, ...],
+           dimension: int = 2) -> dict[str, sympy.Expr]:
+    """Exact fields, fluxes and sources (keys of macro_names' values) for the effects switched
+    on, with the Voigt law of freefem/constitutive.idp in material axes (AXES): in 2D the
+    axis-2 terms vanish (plane strain) and the keys are sig11, sig33, sig13, D1, D3, q1, q3,
+    f1, f2; in 3D every component is there."""
+    names = CONSTANTS + CONSTANTS_3D * (dimension == 3)
+    c = {k: sympy.Float(constants[k]) if k in constants else sympy.Symbol(k) for k in names}
     piezo, thermal = "piezoelectric" in effects, "thermal" in effects
     if not piezo:
-        c["e31"] = c["e33"] = c["e15"] = sympy.Integer(0)
+        for name in PIEZO.values():
+            c[name] = sympy.Integer(0)
     if "pyroelectric" not in effects:
-        c["p1"] = c["p3"] = sympy.Integer(0)
-    u1, u2 = exact.u1, exact.u2
+        for name in ("p1", "p2", "p3"):
+            c[name] = sympy.Integer(0)
+    axes = AXES[dimension]
+    disp = {1: exact.u1, 2: exact.u2, 3: exact.u3} if dimension == 3 else {1: exact.u1, 3: exact.u2}
     phi = exact.phi if piezo else sympy.Integer(0)
     theta = exact.theta if thermal else sympy.Integer(0)
-    d = sympy.diff
-    e11, e33, g13 = d(u1, X), d(u2, Y), d(u1, Y) + d(u2, X)
-    out = {"u1": u1, "u2": u2, "phi": phi, "theta": theta}
-    out["sig11"] = c["f11"] * e11 + c["f13"] * e33 + c["e31"] * d(phi, Y) - c["m11"] * theta
-    out["sig33"] = c["f13"] * e11 + c["f33"] * e33 + c["e33"] * d(phi, Y) - c["m33"] * theta
-    out["sig13"] = c["f44"] * g13 + c["e15"] * d(phi, X)
-    out["D1"] = c["e15"] * g13 - c["b11"] * d(phi, X) - c["p1"] * theta
-    out["D3"] = c["e31"] * e11 + c["e33"] * e33 - c["b33"] * d(phi, Y) - c["p3"] * theta
-    out["q1"] = -c["k11"] * d(theta, X)
-    out["q3"] = -c["k33"] * d(theta, Y)
-    out["f1"] = -(d(out["sig11"], X) + d(out["sig13"], Y))
-    out["f2"] = -(d(out["sig13"], X) + d(out["sig33"], Y))
-    out["charge"] = d(out["D1"], X) + d(out["D3"], Y)
-    out["heat"] = d(out["q1"], X) + d(out["q3"], Y)
+
+    def d(f: sympy.Expr, axis: int) -> sympy.Expr:
+        return sympy.diff(f, axes[axis]) if axis in axes else sympy.Integer(0)
+
+    def w(axis: int) -> sympy.Expr:
+        return disp.get(axis, sympy.Integer(0))
+
+    eps = {I: d(w(a), a) if a == b else d(w(a), b) + d(w(b), a) for I, (a, b) in VOIGT_PAIRS.items()}
+    present = [I for I, (a, b) in VOIGT_PAIRS.items() if a in axes and b in axes]
+
+    def C(I: int, J: int) -> sympy.Expr:
+        name = ELASTIC.get((min(I, J), max(I, J)))
+        return c[name] if name else sympy.Integer(0)
+
+    def e(k: int, I: int) -> sympy.Expr:
+        return c[PIEZO[(k, I)]] if (k, I) in PIEZO else sympy.Integer(0)
+
+    def m(I: int) -> sympy.Expr:
+        return c.get(f"m{I}{I}", sympy.Integer(0)) if I <= 3 else sympy.Integer(0)
+
+    out = {"u1": exact.u1, "u2": exact.u2, "phi": phi, "theta": theta}
+    if dimension == 3:
+        out["u3"] = exact.u3
+    sig = {I: sum((C(I, J) * eps[J] for J in present), sympy.Integer(0))
+           + sum((e(k, I) * d(phi, k) for k in axes), sympy.Integer(0)) - m(I) * theta for I in present}
+    D = {k: sum((e(k, I) * eps[I] for I in present), sympy.Integer(0)) - c[f"b{k}{k}"] * d(phi, k)
+         - c[f"p{k}"] * theta for k in axes}
+    q = {k: -c[f"k{k}{k}"] * d(theta, k) for k in axes}
+    for I in present:
+        out["sig%d%d" % VOIGT_PAIRS[I]] = sig[I]
+    for k in axes:
+        out[f"D{k}"], out[f"q{k}"] = D[k], q[k]
+
+    def stress(a: int, b: int) -> sympy.Expr:
+        I = next(J for J, pair in VOIGT_PAIRS.items() if pair in ((a, b), (b, a)))
+        return sig.get(I, sympy.Integer(0))
+
+    # f0 = -div sigma, one equation per coordinate (the material axes in axis order).
+    for i, a in enumerate(axes, start=1):
+        out[f"f{i}"] = -sum((d(stress(a, b), b) for b in axes), sympy.Integer(0))
+    out["charge"] = sum((d(D[k], k) for k in axes), sympy.Integer(0))
+    out["heat"] = sum((d(q[k], k) for k in axes), sympy.Integer(0))
     return out
+
+
+def macro_names(dimension: int) -> dict[str, str]:
+    """The contract with freefem/ (macro name -> derived quantity): MACROS in 2D, every
+    component in 3D."""
+    if dimension == 2:
+        return MACROS
+    keys = ["u1", "u2", "u3", "phi", "theta", "sig11", "sig22", "sig33", "sig23", "sig13", "sig12",
+            "D1", "D2", "D3", "q1", "q2", "q3", "f1", "f2", "f3", "charge", "heat"]
+    return {"mms" + k[0].upper() + k[1:]: k for k in keys}
 
 
 def freefem_expr(expr: sympy.Expr) -> str:
@@ -106,7 +166,7 @@ def freefem_expr(expr: sympy.Expr) -> str:
     its double (so no integer division, no lost digits)."""
     expr = sympy.sympify(expr)
     if expr.is_Symbol:
-        if expr not in (X, Y):
+        if expr not in (X, Y, Z):
             raise ValueError(f"symbol {expr} has no value in FreeFEM")
         return str(expr)
     if expr.is_Number or expr.is_NumberSymbol:
@@ -139,10 +199,10 @@ def real_literal(value: float) -> str:
     return f"({text})" if value < 0 else text
 
 
-def macros(derived: Mapping[str, sympy.Expr]) -> dict[str, str]:
+def macros(derived: Mapping[str, sympy.Expr], dimension: int = 2) -> dict[str, str]:
     """The macros a manufactured run passes to harness/script.py's main_script."""
     out = {"MMS": "1"}
-    out.update({name: freefem_expr(derived[key]) for name, key in MACROS.items()})
+    out.update({name: freefem_expr(derived[key]) for name, key in macro_names(dimension).items()})
     return out
 
 
@@ -151,8 +211,9 @@ def scene_macros(scene, layout: Layout) -> dict[str, str]:
     texts = scene.manufactured
     if not texts:
         return {}
-    exact = parse_exact(texts)
-    return macros(derive(exact, material_constants(scene.material, layout), scene.effects))
+    exact = parse_exact(texts, scene.dimension)
+    return macros(derive(exact, material_constants(scene.material, layout), scene.effects, scene.dimension),
+                  scene.dimension)
 
 
 def material_constants(material: str, layout: Layout) -> dict[str, float]:
@@ -165,17 +226,17 @@ def _constants(material_file: str, reduction_file: str) -> tuple[tuple[str, floa
     """Include the material as a run does, print the plane-strain constants to 17 digits."""
     includes = [material_file] + [reduction_file] * Path(reduction_file).is_file()
     lines = [f'include "{p}"' for p in includes] + ["cout.precision(17);"]
-    lines += [f'cout << "{k} " << {k} << endl;' for k in CONSTANTS]
+    lines += [f'cout << "{k} " << {k} << endl;' for k in CONSTANTS + CONSTANTS_3D]
     with tempfile.TemporaryDirectory(prefix="ff-material-") as tmp:
         script = Path(tmp) / "constants.edp"
         script.write_text("\n".join(lines) + "\n")
         outcome = freefem.invoke(freefem.command(script, []), Path(tmp), timeout_s=60)
         text = (Path(tmp) / "stdout.txt").read_text()
     values = dict(line.split() for line in text.splitlines() if len(line.split()) == 2)
-    if outcome.returncode != 0 or set(CONSTANTS) - set(values):
+    if outcome.returncode != 0 or set(CONSTANTS + CONSTANTS_3D) - set(values):
         raise RunError(f"FreeFEM could not print the constants of {material_file}: "
                        f"{freefem.error_detail(text) or 'missing constants'}")
-    return tuple((k, float(values[k])) for k in CONSTANTS)
+    return tuple((k, float(values[k])) for k in CONSTANTS + CONSTANTS_3D)
 
 
 def numeric(derived: Mapping[str, sympy.Expr]) -> dict[str, Callable[[np.ndarray, np.ndarray], np.ndarray]]:

@@ -50,7 +50,7 @@ def check_run(scene: Scene, run: RunResult) -> Checked:
     fields = solution_fields(run)
     warnings = []
     if fields is not None and "u" in fields.values:
-        gradient = max_displacement_gradient(fields.points, fields.triangles, fields.field("u"))
+        gradient = max_displacement_gradient(fields.points, fields.cells, fields.field("u"))
         warning = small_strain_warning(gradient, f"{scene.name} n={run.n}")
         if warning:
             warnings.append(warning)

@@ -129,7 +129,7 @@ SCHEMA: dict[str, dict[str, Key]] = {
         "initial_state": Key(str, ""),
     },
     "geometry": {
-        "kind": Key(str, check=one_of("rectangle")),
+        "kind": Key(str, check=one_of("rectangle", "box")),
         "width": Key(float, check=positive),
         "height": Key(float, check=positive),
         "bottom": Key(list),
@@ -143,8 +143,8 @@ SCHEMA: dict[str, dict[str, Key]] = {
     "loads": {
         name: Key(float, 0.0)
         for name in (
-            "traction_x", "traction_y", "surface_charge", "body_force_x",
-            "body_force_y", "charge_density", "heat_source",
+            "traction_x", "traction_y", "traction_z", "surface_charge", "body_force_x",
+            "body_force_y", "body_force_z", "charge_density", "heat_source",
         )
     },
     "contact": {
@@ -184,9 +184,9 @@ SCHEMA: dict[str, dict[str, Key]] = {
     },
 }
 
-# A manufactured solution (harness/mms.py): exact u1, u2 [m], phi [V], theta [K] as sympy
-# expressions in x, y. All blank (the default): an ordinary run with the case's [loads].
-SCHEMA["manufactured"] = {name: Key(str, "") for name in ("u1", "u2", "phi", "theta")}
+# A manufactured solution (harness/mms.py): exact u1, u2 (u3 in 3D) [m], phi [V], theta [K]
+# as sympy expressions in x, y (and z). All blank (the default): an ordinary run with the case's [loads].
+SCHEMA["manufactured"] = {name: Key(str, "") for name in ("u1", "u2", "u3", "phi", "theta")}
 
 # The finite element of every field (freefem/scheme.idp's ELEMENT macro), and a reference
 # run to measure errors against inside FreeFEM (freefem/reference_error.idp, issue 5): its
@@ -202,6 +202,20 @@ SCHEMA["reference"] = {
     # (a graded mesh) has kinks inside reference triangles, which splitting resolves.
     "split": Key(int, 1, positive),
 }
+
+# The [geometry] of kind = "box" (harness/box.py): side lengths and each face's role or
+# patches; the face values are checked there.
+BOX_GEOMETRY: dict[str, Key] = {
+    "kind": Key(str, check=one_of("box")),
+    **{name: Key(float, check=positive) for name in ("lx", "ly", "lz")},
+    **{name: Key(object) for name in ("x0", "x1", "y0", "y1", "z0", "z1")},
+}
+
+
+def geometry_keys(given: dict[str, Any]) -> dict[str, Key]:
+    """The [geometry] schema of the kind a case file names."""
+    return BOX_GEOMETRY if given.get("kind") == "box" else SCHEMA["geometry"]
+
 
 # What a case promises (the stress suite, cases/hard/; harness/studies/stress.py), the way a
 # MOOSE test spec carries a `requirement`: the outcome expected from the solver as it is

@@ -8,22 +8,27 @@ from __future__ import annotations
 import dataclasses
 from typing import Any
 
-from harness.schema import SCHEMA
+from harness.schema import BOX_GEOMETRY, SCHEMA
 
 
-def section_class(section: str) -> type:
-    keys = SCHEMA[section]
+def section_class(section: str, keys: dict | None = None, name: str | None = None) -> type:
+    keys = SCHEMA[section] if keys is None else keys
     fields = [(key, spec.kind | None, dataclasses.field(default=None)) for key, spec in keys.items()]
-    name = "".join(part.capitalize() for part in section.split("_")) + "Section"
+    name = name or "".join(part.capitalize() for part in section.split("_")) + "Section"
     return dataclasses.make_dataclass(name, fields, frozen=True)
 
 
 # section -> its dataclass; `Sections` holds one instance of each.
 SECTION_CLASSES: dict[str, type] = {section: section_class(section) for section in SCHEMA}
+# The [geometry] of a box scene (harness/box.py) has keys of its own.
+BOX_GEOMETRY_SECTION = section_class("geometry", BOX_GEOMETRY, "BoxGeometrySection")
 Sections = dataclasses.make_dataclass(
     "Sections", [(section, cls) for section, cls in SECTION_CLASSES.items()], frozen=True)
 
 
 def sections_of(table: dict[str, dict[str, Any]]) -> Any:
     """A resolved table (scene.resolve) as a Sections instance."""
-    return Sections(**{s: cls(**table.get(s, {})) for s, cls in SECTION_CLASSES.items()})
+    classes = dict(SECTION_CLASSES)
+    if table.get("geometry", {}).get("kind") == "box":
+        classes["geometry"] = BOX_GEOMETRY_SECTION
+    return Sections(**{s: cls(**table.get(s, {})) for s, cls in classes.items()})

@@ -161,10 +161,12 @@ def valid_combinations() -> list[tuple[str, ...]]:
     return [c for k in range(len(names) + 1) for c in combinations(names, k) if effect_list(list(c)) is None]
 
 
-def test_every_valid_combination_of_effects_compiles_and_solves(tmp_path):
+@pytest.mark.parametrize("case, n, dimension", [("paper.toml", 2, 2), ("paper3d.toml", 1, 3)])
+def test_every_valid_combination_of_effects_compiles_and_solves(tmp_path, case, n, dimension):
     """The scheme is assembled from IFMACRO pieces: each of the valid effect sets must give a
-    FreeFEM program that compiles and runs. At h = 1/2 from the pressed start every one of
-    them converges; a failure names its combination."""
+    FreeFEM program that compiles and runs, in 2D and in 3D (the same pieces, freefem/
+    dimension.idp). From the pressed start every one of them converges (2D at h = 1/2, 3D at
+    h = 1, 24 tetrahedra); a failure names its combination."""
     from harness.errors import RunError
     from harness.layout import Layout
     from harness.mesh import build_mesh
@@ -173,16 +175,16 @@ def test_every_valid_combination_of_effects_compiles_and_solves(tmp_path):
     combos = valid_combinations()
     assert len(combos) == 31  # of the 2^7 subsets: 5 without contact, 26 with (friction x2 on each of 13)
     layout = Layout(results=tmp_path)
-    base = load_scene(CASES / "paper.toml")
-    mesh = build_mesh(base.geometry, 2, tmp_path / "meshes").path
+    base = load_scene(CASES / case)
+    mesh = build_mesh(base.geometry, n, tmp_path / "meshes").path
     failed = []
     for combo in combos:
-        scene = load_scene(CASES / "paper.toml", [f"scene.effects={json.dumps(list(combo))}",
+        scene = load_scene(CASES / case, [f"scene.effects={json.dumps(list(combo))}",
                                                    "scene.initial_guess=pressed"])
         try:
-            record = run_level(scene, mesh, 2, layout).record
+            record = run_level(scene, mesh, n, layout).record
         except RunError as exc:
             failed.append(f"{combo}: {exc}")
             continue
-        assert record.unknowns_per_node == 2 + ("piezoelectric" in combo) + ("thermal" in combo)
+        assert record.unknowns_per_node == dimension + ("piezoelectric" in combo) + ("thermal" in combo)
     assert not failed, "\n".join(failed)

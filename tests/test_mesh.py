@@ -70,10 +70,11 @@ def test_each_role_is_one_label_of_the_expected_total_length(paper_meshes):
     lines = np.concatenate([c.data for c in mesh.cells if c.type == "line"])
     tags = np.concatenate([t for c, t in zip(mesh.cells, mesh.cell_data["gmsh:physical"]) if c.type == "line"])
     length = np.linalg.norm(points[lines[:, 1]] - points[lines[:, 0]], axis=1)
-    totals = {role: length[tags == label].sum() for role, label in ROLE_LABELS.items()}
+    # (the roller roles of a box scene label no edge here)
+    totals = {role: length[tags == label].sum() for role, label in ROLE_LABELS.items() if (tags == label).any()}
     # Sums of 8 to 32 edges of length 1/8, exact in binary: no tolerance needed.
     assert totals == {"clamped": 2.0, "loaded": 2.0, "free": 4.0, "contact": 2.0}
-    assert set(mesh.field_data) >= set(ROLE_LABELS)
+    assert set(mesh.field_data) >= set(totals)
 
 
 def test_level_n_nodes_are_exactly_nodes_of_level_2n(paper_meshes):

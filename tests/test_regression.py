@@ -109,6 +109,7 @@ def test_fast_study_reproduces_the_committed_baseline(tmp_path):
 SIGN_FLIPS = [
     ("macro DU1(u1, u2) (e15 * gam13(u1, u2))", "macro DU1(u1, u2) (-e15 * gam13(u1, u2))"),
     ("(e15 * gam13(u1, u2) - b11", "(-e15 * gam13(u1, u2) - b11"),
+    ("macro DU1(u) (e15 * eps5(u))", "macro DU1(u) (-e15 * eps5(u))"),
 ]
 
 
