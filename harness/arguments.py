@@ -87,7 +87,7 @@ def prepared_scene(args: argparse.Namespace, levels: tuple[int, ...] | None = No
     """The case with its overrides and --effects, its warnings printed, the results root and
     the levels checked (nested when `nested`, memory unless overridden)."""
     from harness.faults import check_results_root
-    from harness.guards import check_memory, check_nested
+    from harness.guards import check_memory, check_nested, geometry_depth
     from harness.scene import load_scene
 
     overrides = list(args.overrides)
@@ -101,5 +101,6 @@ def prepared_scene(args: argparse.Namespace, levels: tuple[int, ...] | None = No
     if nested:
         check_nested(levels)
     if not args.ignore_memory:
-        check_memory(scene.geometry.width, scene.geometry.height, levels, scene.effects, scene.element)
+        check_memory(scene.geometry.width, scene.geometry.height, levels, scene.effects, scene.element,
+                     depth=geometry_depth(scene.geometry))
     return scene, levels

@@ -50,7 +50,7 @@ class Box:
     def lengths(self) -> tuple[float, float, float]:
         return self.lx, self.ly, self.lz
 
-    # The memory and disk guards (harness/guards.py) size a level by width x height.
+    # The memory and disk guards (harness/guards.py) size a level by width x height x ly.
     @property
     def width(self) -> float:
         return self.lx

@@ -17,8 +17,16 @@ from harness.errors import EnvironmentFault, SceneError
 # fixed start-up share (34 MB at n = 2) is inside that margin wherever the guard matters.
 BYTES_PER_DOF = 6.7e3
 BASE_BYTES = 0.0
-# MSH 2.2 text per mesh node: a node line (~60 characters) and two triangle lines (~30 each).
-MSH_BYTES_PER_NODE = 150
+# The same in 3D (paper3d, P1, MUMPS; results/paper3d): h = 1/8: 13,365 dofs 268 MB,
+# 20 kB; h = 1/16: 93,925 dofs 2.3 GB, 24.5 kB. A 3D factor's fill grows faster than the
+# unknowns (nested dissection: O(N^(4/3)) entries, George, SIAM J. Numer. Anal. 10, 1973),
+# so past the largest measured level the per-dof figure grows as (N / N_measured)^(1/3):
+# h = 1/32 (702,405 dofs) is estimated at 34 GB and refused on a 24 GiB machine.
+BYTES_PER_DOF_3D = 26e3
+DOFS_3D_MEASURED = 93_925
+# MSH 2.2 text per mesh node: a node line (~60 characters) and two triangle lines (~30
+# each); in 3D, six tetrahedron lines (~40 each).
+MSH_BYTES_PER_NODE = {2: 150, 3: 320}
 # Largest displacement gradient (strain or rotation) the small-strain model is trusted at.
 SMALL_STRAIN = 0.01
 OVERRIDE_FLAG = "--ignore-memory-guard"
@@ -35,20 +43,26 @@ def check_nested(levels: tuple[int, ...]) -> None:
                              f"of {coarse} (use levels that double, e.g. 2,4,8,16)")
 
 
-def unknowns_per_node(effects: tuple[str, ...]) -> int:
-    return 2 + ("piezoelectric" in effects) + ("thermal" in effects)
+def unknowns_per_node(effects: tuple[str, ...], dimension: int = 2) -> int:
+    return dimension + ("piezoelectric" in effects) + ("thermal" in effects)
 
 
-def mesh_nodes(width: float, height: float, n: int, element: str = "P1") -> int:
-    """Nodes of the structured level n (P2: the vertices of the mesh twice as fine)."""
+def mesh_nodes(width: float, height: float, n: int, element: str = "P1", depth: float | None = None) -> int:
+    """Nodes of the structured level n (P2: the vertices of the mesh twice as fine); a box
+    when `depth` (its y extent) is given."""
     k = 2 * n if element == "P2" else n
-    return (math.ceil(width * k) + 1) * (math.ceil(height * k) + 1)
+    nodes = (math.ceil(width * k) + 1) * (math.ceil(height * k) + 1)
+    return nodes * (math.ceil(depth * k) + 1) if depth is not None else nodes
 
 
-def memory_estimate(width: float, height: float, n: int, effects: tuple[str, ...], element: str = "P1") -> tuple[int, float]:
-    """(dofs, peak bytes) of one level's FreeFEM run."""
-    dofs = unknowns_per_node(effects) * mesh_nodes(width, height, n, element)
-    return dofs, BASE_BYTES + BYTES_PER_DOF * dofs
+def memory_estimate(width: float, height: float, n: int, effects: tuple[str, ...], element: str = "P1",
+                    depth: float | None = None) -> tuple[int, float]:
+    """(dofs, peak bytes) of one level's FreeFEM run; 3D when `depth` is given."""
+    if depth is None:
+        dofs = unknowns_per_node(effects) * mesh_nodes(width, height, n, element)
+        return dofs, BASE_BYTES + BYTES_PER_DOF * dofs
+    dofs = unknowns_per_node(effects, 3) * mesh_nodes(width, height, n, element, depth)
+    return dofs, BYTES_PER_DOF_3D * dofs * max(1.0, dofs / DOFS_3D_MEASURED) ** (1 / 3)
 
 
 def available_memory() -> float:
@@ -72,24 +86,29 @@ def available_memory() -> float:
 
 
 def check_memory(width: float, height: float, levels: tuple[int, ...], effects: tuple[str, ...],
-                 element: str = "P1", available: float | None = None) -> None:
+                 element: str = "P1", available: float | None = None, depth: float | None = None) -> None:
     """Refuse, before meshing, a level set whose finest level does not fit in the memory left.
     The next finer-but-one level runs alongside it (the pipelined chain starts the finest
     while its coarser level runs; a parallel study runs two at once), so its peak counts too."""
     finest, *rest = sorted(set(levels), reverse=True)
-    dofs, need = memory_estimate(width, height, finest, effects, element)
+    dofs, need = memory_estimate(width, height, finest, effects, element, depth)
     if rest:
-        need += memory_estimate(width, height, rest[0], effects, element)[1]
+        need += memory_estimate(width, height, rest[0], effects, element, depth)[1]
     have = available_memory() if available is None else available
     if need > have:
         raise EnvironmentFault(
-            f"level n={finest} would need about {need / 1e9:.3g} GB ({dofs:,} dofs at {BYTES_PER_DOF / 1e3:.1f} kB each, "
-            f"measured) but {have / 1e9:.3g} GB is available; refusing before meshing ({OVERRIDE_FLAG} runs it anyway)")
+            f"level n={finest} would need about {need / 1e9:.3g} GB ({dofs:,} dofs, from the measured bytes per dof) but {have / 1e9:.3g} GB is available; refusing before meshing ({OVERRIDE_FLAG} runs it anyway)")
+
+
+def geometry_depth(geometry: object) -> float | None:
+    """A box's y extent (the third dimension of the guards' estimates); None in 2D."""
+    return getattr(geometry, "ly", None) if getattr(geometry, "dimension", 2) == 3 else None
 
 
 def mesh_file_bytes(geometry: object, n: int) -> int:
     width, height = getattr(geometry, "width", 1.0), getattr(geometry, "height", 1.0)
-    return MSH_BYTES_PER_NODE * mesh_nodes(width, height, n)
+    depth = geometry_depth(geometry)
+    return MSH_BYTES_PER_NODE[2 if depth is None else 3] * mesh_nodes(width, height, n, depth=depth)
 
 
 def need_disk(directory: Path, size: int, what: str) -> None:

@@ -365,6 +365,20 @@ def test_the_memory_estimate_matches_the_measured_levels():
         assert gb <= need / 1e9 <= 1.2 * gb
 
 
+def test_the_3d_memory_estimate_bounds_the_measured_levels_and_refuses_h_1_32():
+    """paper3d (results/paper3d): h = 1/8 13,365 dofs 268 MB, h = 1/16 93,925 dofs 2.3 GB;
+    an upper bound within 30 % (26 kB per dof against the measured 20 and 24.5). h = 1/32
+    grows faster than its dofs (a 3D factor's fill) and cannot fit in 24 GiB."""
+    effects = ("piezoelectric", "thermal", "pyroelectric", "contact")
+    for n, dofs, gb in ((8, 13_365, 0.268), (16, 93_925, 2.3)):
+        estimated_dofs, need = guards.memory_estimate(4.0, 1.0, n, effects, depth=1.0)
+        assert estimated_dofs == dofs
+        assert gb <= need / 1e9 <= 1.3 * gb
+    guards.check_memory(4.0, 1.0, (8, 16), effects, available=3e9, depth=1.0)
+    with pytest.raises(guards.EnvironmentFault, match="n=32 would need about"):
+        guards.check_memory(4.0, 1.0, (16, 32), effects, available=24 * 2**30, depth=1.0)
+
+
 def test_a_level_that_cannot_fit_is_refused_before_meshing(capsys, tmp_path):
     """Defect 7: n = 4096 would need terabytes: refused with the estimate and the override."""
     code, err, _ = run(capsys, tmp_path, "solve", str(PAPER), "--n", "4096", freefem=REPO / "freefem")
