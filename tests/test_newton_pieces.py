@@ -45,7 +45,7 @@ for (iter = 1; iter <= maxIt && !stop; ++iter) {
   linearSolve(r, dx, its)
   dx = -dx;
   real[int] x0 = x, rNew(n); real alpha, meritNew; bool passed;
-  lineSearch(x0, dx, meritFloor, x, rNew, meritNew, alpha, passed)
+  lineSearch(x0, dx, merit, meritFloor, x, rNew, meritNew, alpha, passed)
   r = rNew; merit = meritNew; damped += (alpha < 1);
   histAlpha[iter] = alpha; histIncU[iter] = dx.linfty / max(x.linfty, 1e-14);
   newtonStop(iter, alpha, true, 0, 1e-12, stop)
