@@ -6,7 +6,7 @@ PY := $(VENV)/bin/python
 STAMP := $(VENV)/.installed
 
 .PHONY: convergence scenes test baseline freefem clean-runs
-# scenes, stress and branches on a Dask cluster (README, "Past one machine"), e.g.
+# scenes, stress and branches on a Dask cluster (docs/scale-out.md), e.g.
 #   make stress CLUSTER_FLAGS="--cluster local:2"   or   CLUSTER_FLAGS="--scheduler tcp://host:8786"
 CLUSTER_FLAGS ?=
 

@@ -193,7 +193,7 @@ def connect(scheduler: str | None = None, cluster: str | None = None) -> Iterato
     workers = parse_cluster(cluster or "")
     # Non-daemonic worker processes: a study task makes its meshes in a forked process
     # (engine.BackgroundMeshes), which a daemonic process may not start. Workers of another
-    # scheduler need the same (DASK_DISTRIBUTED__WORKER__DAEMON=False, see the README).
+    # scheduler need the same (DASK_DISTRIBUTED__WORKER__DAEMON=False, see docs/scale-out.md).
     with dask.config.set({"distributed.worker.daemon": False}), \
             LocalCluster(n_workers=workers, threads_per_worker=1, processes=True,
                          dashboard_address=":0") as local, Client(local) as client:  # any free port

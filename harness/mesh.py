@@ -223,7 +223,7 @@ def graded_coordinate(t: np.ndarray, focus: Sequence[float], power: float) -> np
     point f to the next breakpoint or focus point g (half-way between two focus points),
     s = (t - f)/(g - f) becomes s^power: cells of size ~h^power at the focus against
     power * h far from it (an r^(1/2) singularity asks for power >= 2 with P1, which
-    coarsens the rest of the mesh too much here: see README, Cost)."""
+    coarsens the rest of the mesh too much here: see docs/cost.md)."""
     out = t.astype(float).copy()
     points = sorted(focus)
     for i, f in enumerate(points):
