@@ -20,7 +20,7 @@ import shutil
 import sys
 import tempfile
 from pathlib import Path
-from typing import Callable
+from typing import Callable, Iterator
 
 from harness import signals
 from harness.contract import ExitCode
@@ -54,6 +54,19 @@ def fault(exc: OSError, doing: str = "") -> EnvironmentFault:
 
 WRITE_ERRNOS = frozenset({errno.ENOSPC, errno.EDQUOT, errno.EACCES, errno.EPERM, errno.EROFS,
                           errno.ENOTDIR, errno.EEXIST, errno.EISDIR})
+FULL_ERRNOS = frozenset({errno.ENOSPC, errno.EDQUOT})
+
+
+@contextlib.contextmanager
+def space_for(what: str, directory: Path) -> Iterator[None]:
+    """A full disk inside names what was being written, and where: a failed write() carries
+    no file name, so the bare OSError would say only "cannot write"."""
+    try:
+        yield
+    except OSError as exc:
+        if exc.errno not in FULL_ERRNOS:
+            raise
+        raise EnvironmentFault(f"{MEANING[exc.errno]} for {what} in {directory}") from None
 
 
 def exit_code(exc: BaseException) -> ExitCode:

@@ -2,6 +2,7 @@
 
 from __future__ import annotations
 
+import contextlib
 import json
 import os
 import shutil
@@ -15,7 +16,7 @@ from harness.atomic import write_atomic
 from harness.contract import Failure
 from harness.cache import cached_record, run_inputs, sha256_file, write_checksums
 from harness.errors import EnvironmentFault, RunError, SceneError
-from harness.faults import disk_full
+from harness.faults import disk_full, space_for
 from harness.signals import CHILDREN, Interrupted
 from harness.layout import Layout
 from harness.record import RunRecord, read_run_json, write_run_json
@@ -104,8 +105,9 @@ class LevelRun:
         """Start FreeFEM now; it will wait for the state of the run on `coarser_mesh`."""
         if launcher.ranks_of(self.scene).parallel:  # stdin reaches rank 0 only: no pipelined start
             return
-        self.work = self._new_work_dir()
-        self.launched = self._launch("file", WarmStart(coarser_mesh, Path("-")), waits=True)
+        with self._space():
+            self.work = self._new_work_dir()
+            self.launched = self._launch("file", WarmStart(coarser_mesh, Path("-")), waits=True)
 
     def start(self, warm: WarmStart | None) -> RunResult | None:
         """The cached result (and no run) if the inputs are unchanged, else None with the run
@@ -131,8 +133,9 @@ class LevelRun:
             self.resumed_at = self.launched.resume(str(start.state.resolve()))
         else:
             self.abandon()  # launched early for a start it will not get: run afresh
-            self.work = self._new_work_dir()
-            self.launched = self._launch(guess, start, waits=False)
+            with self._space():
+                self.work = self._new_work_dir()
+                self.launched = self._launch(guess, start, waits=False)
         return None
 
     def wait(self) -> RunResult:
@@ -146,7 +149,8 @@ class LevelRun:
             if CHILDREN.signum is not None:  # killed by the signal handler, not a failure of its own
                 raise Interrupted(CHILDREN.signum)
             waited = None if self.resumed_at is None else waited_s(work, self.resumed_at)
-            record = collect(work, scene, n, self.layout, outcome, *self.start_line, waited)
+            with self._space():  # collect writes run.json's final form
+                record = collect(work, scene, n, self.layout, outcome, *self.start_line, waited)
         except RunError as exc:
             keep_failed(work, self.layout.failed_dir(scene.name, n))
             CHILDREN.drop_dir(work)
@@ -158,10 +162,15 @@ class LevelRun:
         except BaseException:
             self.abandon()
             raise
-        write_atomic(work / "inputs.json", json.dumps(self.inputs, indent=2, sort_keys=True) + "\n")
-        write_checksums(work)
         final = self.layout.level_dir(scene.name, n)
-        swap_in(work, final)
+        try:
+            with self._space():
+                write_atomic(work / "inputs.json", json.dumps(self.inputs, indent=2, sort_keys=True) + "\n")
+                write_checksums(work)
+                swap_in(work, final)
+        except BaseException:
+            self.abandon()
+            raise
         CHILDREN.drop_dir(work)
         self.work = None
         shutil.rmtree(self.layout.failed_dir(scene.name, n), ignore_errors=True)
@@ -176,6 +185,10 @@ class LevelRun:
             shutil.rmtree(self.work, ignore_errors=True)
             CHILDREN.drop_dir(self.work)
             self.work = None
+
+    def _space(self) -> contextlib.AbstractContextManager[None]:
+        directory = self.layout.level_dir(self.scene.name, self.n).parent
+        return space_for(f"the outputs of {self.scene.name} n={self.n}", directory)
 
     def _new_work_dir(self) -> Path:
         final = self.layout.level_dir(self.scene.name, self.n)

@@ -216,9 +216,12 @@ def test_a_full_disk_while_meshing_on_a_tiny_tmpfs(capsys, tmp_path):
         assert not list((disk / "results" / "paper").glob(".tmp-*"))
 
 
-def test_a_full_disk_while_freefem_writes_its_outputs(capsys, tmp_path):
-    """A 64 kB tmpfs holds n = 2's run and the meshes, not n = 4's outputs (real FreeFEM)."""
-    with mounted_tmpfs(tmp_path / "full", "size=64k") as disk:
+# Sizes at which the disk fills at different writes: FreeFEM's outputs, or the harness's
+# final run.json (a failed write() names no file: CI once printed a bare "cannot write").
+@pytest.mark.parametrize("size", ["48k", "64k", "80k", "128k"])
+def test_a_full_disk_while_freefem_writes_its_outputs(capsys, tmp_path, size):
+    """A small tmpfs holds the meshes and the first runs, not all outputs (real FreeFEM)."""
+    with mounted_tmpfs(tmp_path / "full", f"size={size}") as disk:
         code, err, _ = run(capsys, disk / "results", "solve", str(PAPER), "--n", "8", freefem=REPO / "freefem")
         assert code == 4
         # Which write meets the full disk first (a level's outputs, or a finer level's mesh
@@ -471,3 +474,16 @@ def test_every_exit_code_is_in_the_readme():
     readme = (REPO / "README.md").read_text()
     for code in ExitCode:
         assert f"| {code.value} | `{code.name}` |" in readme
+
+
+def test_a_full_disk_names_what_was_being_written_and_other_faults_pass_through(tmp_path):
+    import errno
+
+    from harness.faults import space_for
+
+    with pytest.raises(EnvironmentFault, match=r"^no space left on the device for the outputs of x n=2 in /r$"):
+        with space_for("the outputs of x n=2", Path("/r")):
+            raise OSError(errno.ENOSPC, "No space left on device")
+    with pytest.raises(PermissionError):
+        with space_for("the outputs of x n=2", Path("/r")):
+            raise PermissionError(errno.EACCES, "Permission denied")
