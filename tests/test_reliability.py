@@ -481,6 +481,8 @@ def test_a_full_disk_names_what_was_being_written_and_other_faults_pass_through(
 
     from harness.faults import space_for
 
+    from harness.errors import EnvironmentFault
+
     with pytest.raises(EnvironmentFault, match=r"^no space left on the device for the outputs of x n=2 in /r$"):
         with space_for("the outputs of x n=2", Path("/r")):
             raise OSError(errno.ENOSPC, "No space left on device")
