@@ -21,17 +21,13 @@ from dataclasses import dataclass
 from pathlib import Path
 from typing import Any
 
-from harness import freefem
+from harness import freefem, mpi_shim
 from harness.contract import Failure
 from harness.errors import RunError, SceneError
 
 MPI_PLUGIN_PATH = "/usr/lib/freefem++/mpi"  # plugins built against MPI (the others abort in FreeFem++-mpi)
 IDP_PATH = "/usr/include/freefem++/idp"  # macro_ddm.idp, from Debian's libfreefem++-dev
 PARALLEL_SCHEME = "parallel.idp"
-# Both MUMPS plugins of Debian's FreeFEM call MPI_Init when loaded (FreeFEM's
-# plugin/seq/MUMPS_seq.cpp, its static InitEnd), which aborts FreeFem++-mpi ("MPI_INIT
-# invoked more than once"); the subdomain factorisations therefore use UMFPACK64.
-SUBDOMAIN_SOLVER = "umfpack64"
 # The Newton history the distributed solve owns (run.json takes these from parallel.json).
 NEWTON_KEYS = ("converged", "reason", "newton_iterations", "residuals", "increments", "error_estimates",
                "damping", "consistent_tangent", "active_nodes", "slip_nodes", "active_set_changes")
@@ -73,7 +69,9 @@ def check_parallel(scene: Any) -> None:
 
 
 def environment() -> dict[str, str]:
-    env = freefem.environment()
+    # The MPI shim lets every rank load the scene's solver plugin, MUMPS included
+    # (freefem/mpi_init_once.c): each subdomain is factorised by the scene's run.linear_solver.
+    env = mpi_shim.preloaded(freefem.environment(), mpi_shim.library())
     env.update(FF_LOADPATH=MPI_PLUGIN_PATH, FF_INCLUDEPATH=IDP_PATH)
     # A rank waiting for a message yields its core instead of spinning (OpenMPI's
     # mpi_yield_when_idle, on by default only when a node is oversubscribed): the ranks

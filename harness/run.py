@@ -247,7 +247,7 @@ def solver_inputs(
     macros = {**manufactured_macros(scene, layout), **scene.reference_macros()}
     parallel = launcher.ranks_of(scene).parallel and not sequential
     text = main_script(scene.material, scene.effects, layout, element=scene.element, macros=macros,
-                       linear_solver=launcher.SUBDOMAIN_SOLVER if parallel else scene.linear_solver,
+                       linear_solver=scene.linear_solver,
                        scheme=layout.freefem / launcher.PARALLEL_SCHEME if parallel else None,
                        dimension=scene.dimension)
     options = ["-mesh", str(mesh.resolve()), "-out", str(out.resolve() if out else "-"), "-n", str(n)]

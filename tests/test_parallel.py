@@ -62,6 +62,9 @@ def test_two_ranks_give_the_one_rank_solution_on_the_paper_scene(tmp_path):
     its = parallel["krylov_iterations"]
     assert len(its) == two.record.newton_iterations + 1 and all(k > 0 for k in its[1:])
     assert set(parallel["wall"]) >= {"decompose_s", "assembly_s", "factorisation_s", "krylov_s", "total_s"}
+    # The scene's solver (MUMPS_seq, by default) factorises each subdomain: the MPI shim
+    # (freefem/mpi_init_once.c) lets its plugin load under FreeFem++-mpi.
+    assert parallel["krylov"].endswith("MUMPS_seq per subdomain")
     # The sequential pass reads the gathered state's residual: a converged state there too.
     assert max(r[0] for r in two.record.post_pass_residuals.values()) < 1e-12
 
@@ -127,3 +130,45 @@ def test_a_run_on_other_ranks_is_not_reused(tmp_path):
     assert (two.record.ranks, three.record.ranks, again.record.ranks) == (2, 3, 3)
     assert len(three.record.parallel["peak_rss_mb_per_rank"]) == 3
     assert again.record.wall_s == three.record.wall_s  # reused: the same run.json
+
+
+@pytest.mark.skipif(bool(mpi_missing()), reason=mpi_missing() or "-")
+@pytest.mark.parametrize("solver, name", [("umfpack64", "UMFPACK64"), ("mumps", "MUMPS_seq")])
+def test_each_subdomain_is_factorised_by_the_scenes_solver(solver, name, tmp_path):
+    results = tmp_path / "results"
+    one = solve(CASES / "paper.toml", 4, results, "scene.name=one")
+    two = solve(CASES / "paper.toml", 4, results, "scene.name=two", "run.ranks=2", f"run.linear_solver={solver}")
+    assert two.record.parallel["krylov"].endswith(f"{name} per subdomain")
+    for a, b in zip(read_state(results / "one/n4/state.txt"), read_state(results / "two/n4/state.txt")):
+        assert np.abs(a - b).max() <= RTOL * np.abs(a).max()
+    assert one.record.newton_iterations == two.record.newton_iterations
+
+
+def test_the_mpi_shim_is_built_once_per_source_and_preloaded_first(tmp_path, monkeypatch):
+    from harness import mpi_shim
+
+    source = tmp_path / "shim.c"
+    source.write_text(mpi_shim.SOURCE.read_text())
+    built = mpi_shim.library(tmp_path / "build", source)
+    stamp = built.stat().st_mtime_ns
+    assert built.is_file() and mpi_shim.library(tmp_path / "build", source) == built
+    assert built.stat().st_mtime_ns == stamp  # not rebuilt
+    source.write_text(source.read_text() + "\n/* edited */\n")
+    assert mpi_shim.library(tmp_path / "build", source) != built  # an edited source: a new library
+    assert not list((tmp_path / "build").glob(".*"))  # no half-built file left
+    env = mpi_shim.preloaded({"LD_PRELOAD": f"/a.so:{built}", "X": "1"}, built)
+    assert env == {"LD_PRELOAD": f"{built}:/a.so", "X": "1"}
+
+
+def test_the_mpi_shim_without_a_compiler_or_with_a_broken_source_is_one_line(tmp_path, monkeypatch):
+    from harness import mpi_shim
+    from harness.errors import EnvironmentFault
+
+    source = tmp_path / "shim.c"
+    source.write_text("int broken(\n")
+    with pytest.raises(EnvironmentFault, match=r"^cannot build the MPI shim shim-\w+\.so: .*error"):
+        mpi_shim.library(tmp_path / "build", source)
+    assert not list((tmp_path / "build").iterdir())
+    monkeypatch.setenv("CC", "no-such-cc")
+    with pytest.raises(EnvironmentFault, match="needs a C compiler"):
+        mpi_shim.library(tmp_path / "build", source)
