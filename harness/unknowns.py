@@ -103,7 +103,13 @@ class Unknowns:
         blocks = {(r, c) for r, c, effect in BULK_BLOCKS if effect is None or effect in self.effects}
         blocks = {(r, c) for r, c in blocks if r in present and c in present}
         space = {f.low: f.space for f in FIELDS}
-        bulk = " ".join(f"matrix K{r}{c} = vK{r}{c}({space[c]}, {space[r]});" for r, c in sorted(blocks))
+        # The blocks only K needs are assembled in a scope that frees them once K is built
+        # (freefem/bulk.idp); a staggered theta's blocks are kept for its solve and loads.
+        kept = {(r, c) for r, c in blocks if self.staggered and "t" in (r, c)}
+
+        def assemble(which: set[tuple[str, str]]) -> str:
+            return " ".join(f"matrix K{r}{c} = vK{r}{c}({space[c]}, {space[r]});" for r, c in sorted(which))
+        kept_blocks, bulk_blocks = assemble(kept), assemble(blocks - kept)
         # A staggered theta is a load on the Newton fields through their blocks K_rt.
         staggered = " ".join(f"real[int] k{r}t = K{r}t * th[]; b{r} -= k{r}t;"
                              for r, c in sorted(blocks) if c == "t" and r in newton)
@@ -135,7 +141,8 @@ class Unknowns:
             loop("scalarFields", self.fields[1:]),
             loop("newtonFields", self.newton),
             f"macro newtonVector(U, P, T) [{vector}] //",
-            f"macro bulkBlocks() {bulk} //",
+            f"macro keptBlocks() {kept_blocks} //",
+            f"macro bulkBlocks() {bulk_blocks} //",
             f"macro bulkMatrix() {bulk_matrix} //",
             f"macro staggeredThetaLoads() {staggered} //" if self.staggered else "",
             f"macro contactBlocks() {' '.join(tangent)} //",
