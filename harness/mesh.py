@@ -22,7 +22,7 @@ from harness.mesh_check import MeshSummary, check_mesh
 from harness.schema import ROLE_LABELS
 from harness.segments import Geometry
 from harness.box import Box
-from harness import box_mesh
+from harness import box_mesh, signals
 
 # gmsh's transfinite arrangement that cuts each cell along the requested diagonal.
 ARRANGEMENT = {"SW-NE": "Right", "NW-SE": "Left"}
@@ -89,6 +89,7 @@ def grid_cells(geometry: Geometry, n: int) -> dict[float, int]:
 def write_with_gmsh(geometry: Geometry, cells: dict[float, int], n: int, target: Path) -> None:
     # interruptible=False: gmsh must not install a SIGINT handler (fails off the main thread).
     gmsh.initialize(readConfigFiles=False, interruptible=False)
+    signals.reassert()  # gmsh.initialize resets SIGTERM and SIGHUP to their defaults
     try:
         gmsh.option.setNumber("General.Terminal", 0)
         gmsh.model.add("scene")
@@ -106,6 +107,7 @@ def write_with_gmsh(geometry: Geometry, cells: dict[float, int], n: int, target:
         raise MeshError(f"gmsh failed: {exc}") from None
     finally:
         gmsh.finalize()
+        signals.reassert()
 
 
 def add_strips(geometry: Geometry, cells: dict[float, int], size: float = 0.0) -> None:

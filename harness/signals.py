@@ -123,6 +123,19 @@ def handled() -> Iterator[Children]:
             signal.signal(signum, action)
 
 
+def reassert() -> None:
+    """Put the handlers Python believes in back in force in the kernel. Native code may reset
+    a disposition behind Python's back: gmsh.initialize() sets SIGTERM and SIGHUP to their
+    defaults, after which a SIGTERM killed the harness outright, leaving its FreeFEM runs'
+    temp dirs behind. Only the main thread may set handlers (elsewhere there is none to keep)."""
+    if threading.current_thread() is not threading.main_thread():
+        return
+    for signum in HANDLED:
+        handler = signal.getsignal(signum)
+        if handler is not None:
+            signal.signal(signum, handler)
+
+
 def in_forked_child() -> None:
     """For a forked worker (the mesh pool): the parent ends it, so ignore SIGINT (a Ctrl-C
     reaches the whole foreground group and would print the worker's traceback), die on

@@ -172,3 +172,39 @@ def test_the_mpi_shim_without_a_compiler_or_with_a_broken_source_is_one_line(tmp
     monkeypatch.setenv("CC", "no-such-cc")
     with pytest.raises(EnvironmentFault, match="needs a C compiler"):
         mpi_shim.library(tmp_path / "build", source)
+
+
+@pytest.mark.skipif(bool(mpi_missing()), reason=mpi_missing() or "-")
+def test_a_signal_during_a_two_rank_solve_ends_every_rank_and_leaves_no_temp_dir(tmp_path):
+    import signal
+    import subprocess
+    import sys
+    import time
+
+    from test_reliability import alive, descendants, one_error, wait_for
+
+    proc = subprocess.Popen([sys.executable, "-m", "harness", "solve", str(CASES / "paper.toml"), "--n", "64",
+                             "--set", "run.ranks=2", "--results", str(tmp_path / "results")],
+                            cwd=CASES.parent, stdout=subprocess.PIPE, stderr=subprocess.PIPE)
+
+    def program(pid: int) -> str:
+        try:
+            return Path(f"/proc/{pid}/comm").read_text().strip()
+        except OSError:  # ended meanwhile
+            return ""
+
+    def ranks() -> list[int]:
+        return [pid for pid in descendants(proc.pid) if program(pid) == "FreeFem++-mpi"]
+
+    wait_for(lambda: len(ranks()) == 2 or proc.poll() is not None, timeout=60)
+    assert proc.poll() is None, proc.communicate()
+    time.sleep(0.5)  # inside the solve (the ranks have loaded the mesh and the MPI shim)
+    tree = descendants(proc.pid)
+    proc.send_signal(signal.SIGTERM)
+    _, err = proc.communicate(timeout=30)
+    lines = err.decode().strip().splitlines()
+    assert proc.returncode == 130, lines
+    one_error(lines, "interrupted by SIGTERM")
+    wait_for(lambda: not any(alive(pid) for pid in tree), timeout=10)
+    case = tmp_path / "results" / "paper"
+    assert not list(case.glob(".tmp-*")) and not (case / "n64").exists()

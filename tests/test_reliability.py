@@ -489,3 +489,16 @@ def test_a_full_disk_names_what_was_being_written_and_other_faults_pass_through(
     with pytest.raises(PermissionError):
         with space_for("the outputs of x n=2", Path("/r")):
             raise PermissionError(errno.EACCES, "Permission denied")
+
+
+def test_meshing_in_this_process_leaves_the_signal_handlers_in_force(tmp_path):
+    """gmsh.initialize() resets SIGTERM and SIGHUP to their defaults behind Python's back: a
+    SIGTERM after the first mesh killed the harness outright, temp dirs left behind."""
+    from harness import signals
+    from harness.executor import mesh_task
+    from harness.layout import Layout
+    from harness.scene import load_scene
+
+    with signals.handled():
+        mesh_task(load_scene(PAPER), 2, Layout(results=tmp_path))
+        assert all(catches(os.getpid(), signum) for signum in (signal.SIGTERM, signal.SIGHUP, signal.SIGINT))
