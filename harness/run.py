@@ -299,7 +299,9 @@ def collect(
     log = log_file(work, layout.failed_dir(scene.name, n))
     record = read_run_json(work)
     if outcome.returncode != 0:
-        detail = (record.reason if record else None) or freefem.error_detail(read_logs(work))
+        # A distributed solve that failed wrote its reason into parallel.json, not run.json.
+        solved_by = record.reason if record else (launcher.read_json(work / "parallel.json") or {}).get("reason")
+        detail = solved_by or freefem.error_detail(read_logs(work))
         reason = freefem.failure_reason(outcome, scene.timeout_s, str(detail), started_pressed(scene, guess))
         raise RunError(f"{where}: {reason} (see {log})", freefem.failure_of(outcome))
     if record is None:

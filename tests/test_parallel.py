@@ -208,3 +208,18 @@ def test_a_signal_during_a_two_rank_solve_ends_every_rank_and_leaves_no_temp_dir
     wait_for(lambda: not any(alive(pid) for pid in tree), timeout=10)
     case = tmp_path / "results" / "paper"
     assert not list(case.glob(".tmp-*")) and not (case / "n64").exists()
+
+
+@pytest.mark.skipif(bool(mpi_missing()), reason=mpi_missing() or "-")
+def test_a_newton_failure_on_ranks_reads_as_on_one_rank(tmp_path, capsys):
+    from harness.cli import main
+
+    lines = {}
+    for ranks in (1, 2):
+        code = main(["solve", str(CASES / "paper.toml"), "--n", "8", "--results", str(tmp_path / f"r{ranks}"),
+                     "--set", f"run.ranks={ranks}", "--set", "newton.max_iterations=1",
+                     "--set", "scene.initial_guess=zero"])
+        err = capsys.readouterr().err.strip().splitlines()
+        assert code == 3 and len(err) == 1, err
+        lines[ranks] = err[0].split(" (see ")[0]
+    assert lines[1] == lines[2] == "error: paper n=8: Newton hit its maximum number of iterations: max_iterations"
