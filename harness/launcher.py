@@ -24,6 +24,7 @@ from typing import Any
 from harness import freefem, mpi_shim
 from harness.contract import Failure
 from harness.errors import RunError, SceneError
+from harness.unknowns import Unknowns
 
 MPI_PLUGIN_PATH = "/usr/lib/freefem++/mpi"  # plugins built against MPI (the others abort in FreeFem++-mpi)
 IDP_PATH = "/usr/include/freefem++/idp"  # macro_ddm.idp, from Debian's libfreefem++-dev
@@ -62,6 +63,9 @@ def check_parallel(scene: Any) -> None:
         return
     if scene.element != "P1":
         raise SceneError("run.ranks > 1 needs scene.element = P1 (the partition of unity is P1)")
+    if Unknowns(scene.effects, scene.dimension).staggered:
+        raise SceneError("run.ranks > 1 solves the monolithic Newton system only: this scene's theta is staggered "
+                         "(thermal without thermal_contact); solve it on one rank")
     guesses = {scene.initial_guess, scene.sections.scene.coarsest_guess}
     if "pressed" in guesses:
         raise SceneError("run.ranks > 1 cannot start from the pressed guess (its harmonic extensions are global "
