@@ -260,3 +260,18 @@ def test_two_ranks_give_the_one_rank_solution_in_3d(tmp_path):
     assert one.record.newton_iterations == two.record.newton_iterations
     assert two.record.contact_force == pytest.approx(one.record.contact_force, rel=1e-8)
     assert all(k > 0 for k in parallel["krylov_iterations"][1:])
+
+
+@pytest.mark.skipif(bool(mpi_missing()), reason=mpi_missing() or "-")
+def test_the_scale_table_compares_each_rank_count_with_one_rank(tmp_path):
+    from harness.layout import Layout
+    from harness.studies.scale import mpi_table
+
+    table = mpi_table(CASES / "paper3d.toml", (2,), (1, 2), Layout(results=tmp_path))
+    one, two = (row for _, row in table.iterrows())
+    assert (one.ranks, two.ranks, one.n, two.n) == (1, 2, 2, 2) and one.dofs == two.dofs
+    assert one.memory_vs_1_rank == 1 and one.max_rel_diff_vs_1_rank == 0
+    assert two.max_rel_diff_vs_1_rank <= RTOL
+    assert two.memory_vs_1_rank == pytest.approx(two.peak_rss_mb_max_rank / one.peak_rss_mb_max_rank)
+    assert len(two.peak_rss_mb_per_rank.split()) == 2 and two.post_pass_peak_rss_mb > 0
+    assert len(two.krylov_iterations.split()) == two.newton_iterations and "per subdomain" in two.linear_solver
