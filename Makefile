@@ -73,11 +73,12 @@ cost: $(STAMP) freefem
 bench: $(STAMP) freefem
 	$(PY) -m harness bench cases/paper.toml $(BENCH_FLAGS)
 
-# Past one machine (issue 15): the paper scene solved on 1 and 2 MPI ranks (time, Krylov
-# iterations, per-rank memory, agreement) and the stress suite in this process
-# against a local Dask cluster of 2 workers, into results/scale/ (mpi.csv, stress.csv,
-# scale.md). Small sizes by default; on an idle machine:
-#   make scale SCALE_FLAGS="--mpi-levels 64,256 --stress-levels="
+# Past one machine (issue 15): the paper scene solved on 1 and 2 MPI ranks, in 2D and 3D
+# (time, Krylov iterations, per-rank memory, agreement), and the stress suite in this
+# process against local Dask clusters of 1 and 2 workers, each started and warmed before
+# the suite is timed (5 runs each, medians), into results/scale/ (mpi.csv, mpi3d.csv,
+# stress.csv, scale.md). Small sizes by default; on an idle machine:
+#   make scale SCALE_FLAGS="--mpi-levels 64,256 --mpi-3d-levels 8,16 --stress-levels="
 .PHONY: scale
 scale: $(STAMP) freefem
 	$(PY) -m harness scale $(SCALE_FLAGS)

@@ -111,6 +111,11 @@ def level_task(scene: Scene, mesh: Path, n: int, layout: Layout, force: bool,
     return run_level(scene, mesh, n, layout, force, warm)
 
 
+def import_harness() -> None:
+    """What a study task needs loaded (the stress study pulls in the whole harness)."""
+    import harness.studies.stress  # noqa: F401
+
+
 class DaskExecutor:
     """A Dask `distributed` client: one task per mesh and per level, a warm-started level
     depending on its coarser level. A task whose worker dies is rerun elsewhere by the
@@ -118,6 +123,11 @@ class DaskExecutor:
 
     def __init__(self, client: Any) -> None:
         self.client = client
+
+    def warm(self) -> None:
+        """Every worker imports the harness now, so that a timed study does not pay a fresh
+        worker's imports (about a second each) in its first tasks."""
+        self.client.run(import_harness)
 
     def submit(self, fn: Callable[..., T], *args: Any, **kwargs: Any) -> Any:
         """concurrent.futures' submit (engine.run_chains' seam): a Dask future, whose
@@ -194,7 +204,9 @@ def connect(scheduler: str | None = None, cluster: str | None = None) -> Iterato
     # Non-daemonic worker processes: a study task makes its meshes in a forked process
     # (engine.BackgroundMeshes), which a daemonic process may not start. Workers of another
     # scheduler need the same (DASK_DISTRIBUTED__WORKER__DAEMON=False, see docs/scale-out.md).
-    with dask.config.set({"distributed.worker.daemon": False}), \
+    # The workers' statistical profiler off: it samples every thread's stack every 10 ms,
+    # CPU taken from the FreeFEM runs on a machine whose cores the workers already fill.
+    with dask.config.set({"distributed.worker.daemon": False, "distributed.worker.profile.enabled": False}), \
             LocalCluster(n_workers=workers, threads_per_worker=1, processes=True,
                          dashboard_address=":0") as local, Client(local) as client:  # any free port
         yield DaskExecutor(client)

@@ -168,3 +168,36 @@ def test_stress_on_an_existing_scheduler_by_address(tmp_path, capsys):
     local_out = capsys.readouterr().out
     lines = lambda out: sorted(line.split("(")[0].strip() for line in out.splitlines() if " n=" in line)  # noqa: E731
     assert lines(dask_out) == lines(local_out) and len(lines(local_out)) == 2
+
+
+def modules_and_profiler() -> tuple[bool, bool]:
+    import sys
+
+    import dask as dask_module
+
+    return "harness.studies.stress" in sys.modules, dask_module.config.get("distributed.worker.profile.enabled")
+
+
+def test_a_warmed_local_cluster_has_the_harness_imported_and_no_profiler(dask):
+    """What make scale times on a cluster is the study, not the workers' imports; and the
+    workers' statistical profiler (a thread sampling every 10 ms) is off."""
+    dask.warm()
+    assert set(dask.client.run(modules_and_profiler).values()) == {(True, False)}
+
+
+def test_stress_summaries_are_compared_to_round_off_not_bit_for_bit():
+    import pandas as pd
+
+    from harness.studies.scale import same_summary
+
+    table = pd.DataFrame({"case": ["a", "b"], "status": ["converged", "diverged"], "newton": [3, 7],
+                          "force": [1.0, 2.5e-6]})
+    moved = table.copy()
+    moved["force"] = [1.0 + 1e-9, 2.5e-6 * (1 + 1e-9)]   # the unstructured mesh's round-off
+    assert same_summary(table, table) and same_summary(table, moved)
+    worse = table.copy()
+    worse["force"] = [1.0, 2.6e-6]
+    other = table.copy()
+    other["status"] = ["converged", "converged"]
+    assert not same_summary(table, worse) and not same_summary(table, other)
+    assert not same_summary(table, table.iloc[:1]) and not same_summary(table, table.drop(columns=["newton"]))
