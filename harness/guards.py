@@ -12,10 +12,12 @@ import numpy as np
 from harness.errors import EnvironmentFault, SceneError
 
 # Peak resident memory per unknown of FreeFEM's run (P1, MUMPS): the largest measured ratio,
-# rounded up (results/cost/scaling.csv, peak_rss_mb / dofs: 1/64: 66,820 dofs 0.39 GB,
-# 5.8 kB; 1/128: 264,708 dofs 1.75 GB, 6.6 kB; 1/256: 1,053,700 dofs 6.43 GB, 6.1 kB). The
-# fixed start-up share (34 MB at n = 2) is inside that margin wherever the guard matters.
-BYTES_PER_DOF = 6.7e3
+# rounded up (results/cost/scaling.csv, VmHWM in MiB / dofs, AMD EPYC: 1/64: 66,820 dofs
+# 338 MiB, 5.3 kB; 1/128: 264,708 dofs 1,569 MiB, 6.2 kB (two factorisations); 1/256:
+# 1,053,700 dofs 5,648 MiB, 5.6 kB). The fixed start-up share (34 MiB at n = 2) is inside
+# that margin wherever the guard matters. On MPI ranks on this machine the ranks together
+# hold about as much (1.1x at 2 ranks, results/scale/mpi.csv), so the same estimate serves.
+BYTES_PER_DOF = 6.3e3
 BASE_BYTES = 0.0
 # The same in 3D (paper3d, P1, MUMPS; results/paper3d): h = 1/8: 13,365 dofs 268 MB,
 # 20 kB; h = 1/16: 93,925 dofs 2.3 GB, 24.5 kB. A 3D factor's fill grows faster than the
