@@ -272,6 +272,8 @@ def test_the_scale_table_compares_each_rank_count_with_one_rank(tmp_path):
     assert (one.ranks, two.ranks, one.n, two.n) == (1, 2, 2, 2) and one.dofs == two.dofs
     assert one.memory_vs_1_rank == 1 and one.max_rel_diff_vs_1_rank == 0
     assert two.max_rel_diff_vs_1_rank <= RTOL
+    per_field = [two[f"rel_diff_{name}"] for name in ("u", "phi", "theta")]  # the issue asks per field
+    assert max(per_field) == two.max_rel_diff_vs_1_rank and one.rel_diff_u == 0
     assert two.memory_vs_1_rank == pytest.approx(two.peak_rss_mb_max_rank / one.peak_rss_mb_max_rank)
     assert len(two.peak_rss_mb_per_rank.split()) == 2 and two.post_pass_peak_rss_mb > 0
     assert len(two.krylov_iterations.split()) == two.newton_iterations and "per subdomain" in two.linear_solver
