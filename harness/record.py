@@ -77,6 +77,7 @@ class RunRecord:
     max_abs_u: float | None = None
     contact_force: float | None = None
     friction_force: float | None = None
+    friction_force_vector: list[float] | None = None  # its x, y(, z) components
     active_length: float | None = None
     heat_in_contact: float | None = None
     charge_in_contact: float | None = None

@@ -67,6 +67,8 @@ def test_tangential_load_below_the_bound_sticks_and_is_carried_by_friction(tmp_p
     assert run.record.slip_nodes[-1] == 0
     # Horizontal equilibrium holds like the vertical one (b), to Newton's final residual.
     assert run.record.friction_force == pytest.approx(4.25 * 2.0, rel=1e-7)
+    # As a vector: along x, nothing along y on the flat contact line.
+    assert run.record.friction_force_vector == pytest.approx([4.25 * 2.0, 0.0], rel=1e-7, abs=1e-12)
 
 
 def test_tangential_load_above_the_bound_slips_with_shear_equal_to_the_bound(tmp_path):
