@@ -56,6 +56,7 @@ class Failure(enum.Enum):
     MAX_ITERATIONS = (12, "Newton hit its maximum number of iterations")
     BAD_INITIAL_GUESS = (13, "unknown initial guess")
     INVALID_MATERIAL = (14, "invalid material")
+    BAD_DECOMPOSITION = (15, "MPI decomposition rejected")
     TIMEOUT = (None, "timed out")
     KILLED = (None, "killed by a signal")
     NO_OUTPUT = (None, "FreeFEM wrote no readable output")
@@ -83,7 +84,7 @@ class Failure(enum.Enum):
 
 # The codes FreeFEM scripts of this project raise themselves (the others are FreeFEM's own).
 SCRIPT_FAILURES = (Failure.DIVERGED, Failure.NAN, Failure.MAX_ITERATIONS, Failure.BAD_INITIAL_GUESS,
-                   Failure.INVALID_MATERIAL)
+                   Failure.INVALID_MATERIAL, Failure.BAD_DECOMPOSITION)
 
 
 def contract_idp() -> str:

@@ -277,3 +277,17 @@ def test_the_scale_table_compares_each_rank_count_with_one_rank(tmp_path):
     assert two.memory_vs_1_rank == pytest.approx(two.peak_rss_mb_max_rank / one.peak_rss_mb_max_rank)
     assert len(two.peak_rss_mb_per_rank.split()) == 2 and two.post_pass_peak_rss_mb > 0
     assert len(two.krylov_iterations.split()) == two.newton_iterations and "per subdomain" in two.linear_solver
+
+
+@pytest.mark.skipif(bool(mpi_missing()), reason=mpi_missing() or "-")
+def test_a_mesh_too_coarse_for_its_ranks_is_refused_not_solved_wrong(tmp_path, capsys):
+    """The paper scene at n = 2 on 4 ranks: macro_ddm's overlapping subdomains count some
+    unknowns 0.5 or 1.5 times there (its solution came out 50 % off); the run stops instead."""
+    from harness.cli import main
+
+    code = main(["solve", str(CASES / "paper.toml"), "--n", "2", "--results", str(tmp_path),
+                 "--set", "run.ranks=4", "--set", "scene.initial_guess=zero"])
+    err = capsys.readouterr().err.strip().splitlines()
+    assert code == 3 and len(err) == 1, err
+    assert "MPI decomposition rejected: the mesh of n = 2 is too coarse for 4 ranks" in err[0]
+    assert not (tmp_path / "paper" / "n2").exists() and not list((tmp_path / "paper").glob(".tmp-*"))
