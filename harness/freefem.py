@@ -169,8 +169,7 @@ def wait_measured(proc: subprocess.Popen, timeout_s: float) -> tuple[int | None,
 
 def error_detail(log: str) -> str:
     line = next((line.strip() for line in log.splitlines() if ERROR_LINE.search(line)), "")
-    # The scripts' own "error: ..." lines: the harness prints its own "error:" in front.
-    return line.removeprefix("error: ")[:200]
+    return line[:200]
 
 
 def failure_of(outcome: Outcome) -> Failure:

@@ -289,5 +289,5 @@ def test_a_mesh_too_coarse_for_its_ranks_is_refused_not_solved_wrong(tmp_path, c
                  "--set", "run.ranks=4", "--set", "scene.initial_guess=zero"])
     err = capsys.readouterr().err.strip().splitlines()
     assert code == 3 and len(err) == 1, err
-    assert "MPI decomposition rejected: the mesh of n = 2 is too coarse for 4 ranks" in err[0]
+    assert "MPI decomposition rejected: error: the mesh of n = 2 is too coarse for 4 ranks" in err[0]
     assert not (tmp_path / "paper" / "n2").exists() and not list((tmp_path / "paper").glob(".tmp-*"))
