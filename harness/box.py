@@ -44,7 +44,7 @@ class Box:
     lz: float
     faces: dict[str, tuple[Patch, ...]]
     dimension: int = 3
-    diagonals: str = "kuhn"  # the Kuhn/Freudenthal split of harness/box_mesh.py
+    diagonals: str = "kuhn"  # the Kuhn/Freudenthal split of harness/box_mesh.py, or "unstructured" (gmsh)
 
     @property
     def lengths(self) -> tuple[float, float, float]:
@@ -69,6 +69,20 @@ class Box:
         raise MeshError(f"face {name}: no patch contains the triangle at {tuple(np.round(centroid, 6))}: "
                         "are the patch edges on the mesh's grid lines?")
 
+    def cuts(self, axis: int) -> list[float]:
+        """The coordinates along `axis` where a patch starts or ends, with the box's own
+        ends: an unstructured mesh must have faces along them for its roles to be exact."""
+        length = self.lengths[axis]
+        found = {0.0, length}
+        for name, patches in self.faces.items():
+            normal = "xyz".index(name[0])
+            in_plane = [i for i in range(3) if i != normal]
+            if axis in in_plane:
+                first = in_plane.index(axis) == 0
+                for patch in patches:
+                    found |= {patch.a0, patch.a1} if first else {patch.b0, patch.b1}
+        return sorted(found)
+
     def role_areas(self) -> dict[str, float]:
         areas = dict.fromkeys(ROLE_LABELS, 0.0)
         for patches in self.faces.values():
@@ -86,7 +100,7 @@ def face_extent(name: str, lengths: tuple[float, float, float]) -> tuple[float, 
 def parse_box(table: dict[str, Any]) -> Box:
     lengths = (table["lx"], table["ly"], table["lz"])
     faces = {name: parse_face(f"geometry.{name}", table[name], face_extent(name, lengths)) for name in FACES}
-    return Box(*lengths, faces=faces)
+    return Box(*lengths, faces=faces, diagonals=table.get("diagonals", "kuhn"))
 
 
 def parse_face(name: str, value: Any, extent: tuple[float, float]) -> tuple[Patch, ...]:

@@ -58,6 +58,23 @@ def contact_nodes(scene: Scene, fields: Fields) -> list[np.ndarray]:
     return out
 
 
+def contact_node_count(scene: Scene, fields: Fields) -> int:
+    """How many nodes lie on Gamma_3: on a contact segment (2D) or patch (a box)."""
+    if scene.dimension != 3:
+        return len(np.unique(np.concatenate(contact_nodes(scene, fields))))
+    box, pts = scene.geometry, fields.points
+    tol = 1e-6 * max(box.lengths)  # solution.vtu's coordinates are single precision
+    on = np.zeros(len(pts), dtype=bool)
+    for name, patches in box.faces.items():
+        axis = "xyz".index(name[0])
+        a, b = (i for i in range(3) if i != axis)
+        plane = np.abs(pts[:, axis] - (0.0 if name[1] == "0" else box.lengths[axis])) < tol
+        for patch in (p for p in patches if p.role == "contact"):
+            on |= plane & (pts[:, a] > patch.a0 - tol) & (pts[:, a] < patch.a1 + tol) \
+                & (pts[:, b] > patch.b0 - tol) & (pts[:, b] < patch.b1 + tol)
+    return int(on.sum())
+
+
 def contact_length(scene: Scene) -> float:
     """|Gamma_3|: a length in 2D, an area for a box (harness/box.py)."""
     if scene.dimension == 3:

@@ -193,7 +193,13 @@ def distort(n: int, fraction: float = 0.3) -> None:
 def build_box_mesh(box: Box, n: int, directory: Path) -> MeshSummary:
     """The Kuhn tetrahedral mesh of a box scene (harness/box_mesh.py), checked: the area of
     each role's triangles equals its patches' area (role_lengths holds areas in 3D)."""
-    mesh = box_mesh.kuhn_box(box.lengths, n, box.role_of)
+    if box.diagonals == "unstructured":
+        points, tetrahedra = unstructured_box(box, n)
+        tetrahedra = box_mesh.orient_positive(points, tetrahedra)
+        triangles, labels = box_mesh.boundary_faces(points, tetrahedra, box.lengths, box.role_of)
+        mesh = box_mesh.BoxMesh(points, tetrahedra, triangles, labels)
+    else:
+        mesh = box_mesh.kuhn_box(box.lengths, n, box.role_of)
     areas = dict.fromkeys(ROLE_LABELS, 0.0)
     p = mesh.points[mesh.triangles]
     tri_area = 0.5 * np.linalg.norm(np.cross(p[:, 1] - p[:, 0], p[:, 2] - p[:, 0]), axis=1)
@@ -217,6 +223,38 @@ def build_box_mesh(box: Box, n: int, directory: Path) -> MeshSummary:
     finally:
         tmp.unlink(missing_ok=True)
     return MeshSummary(path=target, n=n, nodes=len(mesh.points), triangles=len(mesh.tetrahedra), role_lengths=areas)
+
+
+def unstructured_box(box: Box, n: int) -> tuple[np.ndarray, np.ndarray]:
+    """gmsh's tetrahedra of about size 1/n (Delaunay, one thread: the same mesh every time)
+    on the box cut into blocks at every patch edge, so that each boundary triangle lies in
+    one patch; (points, tetrahedra) as index arrays."""
+    gmsh.initialize(readConfigFiles=False, interruptible=False)
+    signals.reassert()  # gmsh.initialize resets SIGTERM and SIGHUP to their defaults
+    try:
+        gmsh.option.setNumber("General.Terminal", 0)
+        gmsh.option.setNumber("General.NumThreads", 1)
+        gmsh.model.add("box")
+        x, y, z = (box.cuts(axis) for axis in range(3))
+        blocks = [(3, gmsh.model.occ.addBox(x0, y0, z0, x1 - x0, y1 - y0, z1 - z0))
+                  for x0, x1 in zip(x, x[1:]) for y0, y1 in zip(y, y[1:]) for z0, z1 in zip(z, z[1:])]
+        if len(blocks) > 1:
+            gmsh.model.occ.fragment(blocks[:1], blocks[1:])  # shared faces: one conforming mesh
+        gmsh.model.occ.synchronize()
+        gmsh.option.setNumber("Mesh.MeshSizeMax", 1.0 / n)
+        gmsh.option.setNumber("Mesh.Algorithm3D", 1)
+        gmsh.model.mesh.generate(3)
+        tags, coords, _ = gmsh.model.mesh.getNodes()
+        _, nodes = gmsh.model.mesh.getElementsByType(4)  # 4-node tetrahedra
+    except Exception as exc:  # gmsh raises a bare Exception with its own log text
+        raise MeshError(f"gmsh failed on the box at n={n}: {exc}") from None
+    finally:
+        gmsh.finalize()
+        signals.reassert()
+    index = np.full(int(tags.max()) + 1, -1)
+    index[tags.astype(int)] = np.arange(len(tags))
+    points = coords.reshape(-1, 3)
+    return points, index[nodes.astype(int)].reshape(-1, 4)
 
 
 def graded_coordinate(t: np.ndarray, focus: Sequence[float], power: float) -> np.ndarray:

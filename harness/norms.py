@@ -7,13 +7,14 @@ P1 gradients are constant per triangle, so the integrals are exact sums of area 
 
 from __future__ import annotations
 
+import itertools
 import math
 from typing import Callable, Sequence
 
 import numpy as np
 from matplotlib.tri import Triangulation
 
-from harness.errors import FieldsError
+from harness.errors import FieldsError, MeshError
 from harness.box_mesh import grid_index, kuhn_weights
 from harness.fields import Fields
 
@@ -130,12 +131,53 @@ def simplex_seminorm(points: np.ndarray, cells: np.ndarray, values: np.ndarray) 
     return float(np.sqrt(np.sum(volume * density)))
 
 
+def tetrahedron_weights(coarse: Fields, at: np.ndarray, tol: float = 1e-5) -> tuple[np.ndarray, np.ndarray]:
+    """Point location in an unstructured tetrahedral mesh: for each point of `at`, the four
+    nodes of the coarse tetrahedron holding it and its barycentric weights. The tetrahedra
+    are binned on a uniform grid by their bounding boxes; each point is tested against its
+    bin's tetrahedra only and takes the one where its smallest weight is largest (>= -tol:
+    on a shared face either neighbour gives the same P1 value; solution.vtu's coordinates
+    are single precision, so a boundary node may sit 1e-7 outside)."""
+    points, tets = coarse.points, coarse.tetrahedra
+    corners = points[tets]                                            # (M, 4, 3)
+    to_weights = np.linalg.inv(np.swapaxes(corners[:, 1:] - corners[:, :1], 1, 2))  # x - a -> (w1, w2, w3)
+    low, span = points.min(axis=0), np.ptp(points, axis=0)
+    bins = max(1, round(len(tets) ** (1 / 3) / 2))
+
+    def cell(x: np.ndarray) -> np.ndarray:
+        return np.clip(((x - low) / span * bins).astype(np.int64), 0, bins - 1)
+
+    first, last = cell(corners.min(axis=1) - tol * span), cell(corners.max(axis=1) + tol * span)
+    members: dict[tuple[int, int, int], list[int]] = {}
+    for m, (a, b) in enumerate(zip(first, last)):
+        for key in itertools.product(*(range(a[i], b[i] + 1) for i in range(3))):
+            members.setdefault(key, []).append(m)
+    found, weights = np.full(len(at), -1), np.zeros((len(at), 4))
+    keys = cell(at)
+    for key in {tuple(k) for k in keys}:
+        rows = np.flatnonzero((keys == key).all(axis=1))
+        candidates = np.array(members.get(key, []), dtype=np.int64)
+        if not len(candidates):
+            continue
+        w = np.einsum("cij,pcj->pci", to_weights[candidates], at[rows][:, None, :] - corners[candidates, 0][None])
+        full = np.concatenate([1.0 - w.sum(axis=-1, keepdims=True), w], axis=-1)   # (P, C, 4)
+        best = full.min(axis=-1).argmax(axis=1)
+        inside = full[np.arange(len(rows)), best].min(axis=-1) >= -tol
+        found[rows[inside]] = candidates[best[inside]]
+        weights[rows[inside]] = full[np.arange(len(rows)), best][inside]
+    if np.any(found < 0):
+        raise FieldsError(f"{coarse.source}: some fine nodes lie outside the coarse mesh")
+    return tets[found], weights
+
+
 def error_norms(coarse: Fields, fine: Fields, names: list[str]) -> dict[str, float]:
     """||fine - coarse|| per field, on the fine mesh."""
     if coarse.tetrahedra is not None:
-        # Nested Kuhn meshes of a box (harness/box_mesh.py): the transfer is exact.
-        grid, spacing = kuhn_grid(coarse)
-        nodes, w = kuhn_weights(coarse.points, grid, spacing, fine.points)
+        try:  # a Kuhn mesh of a box (harness/box_mesh.py): its grid locates every point at once
+            grid, spacing = kuhn_grid(coarse)
+            nodes, w = kuhn_weights(coarse.points, grid, spacing, fine.points)
+        except MeshError:  # an unstructured one: the nodal interpolant, as on non-nested triangles
+            nodes, w = tetrahedron_weights(coarse, fine.points)
         return {name: simplex_seminorm(fine.points, fine.cells,
                                        fine.field(name) - np.einsum("nk,nk...->n...", w, coarse.field(name)[nodes]))
                 for name in names}

@@ -209,6 +209,8 @@ BOX_GEOMETRY: dict[str, Key] = {
     "kind": Key(str, check=one_of("box")),
     **{name: Key(float, check=positive) for name in ("lx", "ly", "lz")},
     **{name: Key(object) for name in ("x0", "x1", "y0", "y1", "z0", "z1")},
+    # kuhn: nested structured tetrahedra (harness/box_mesh.py); unstructured: gmsh's, not nested.
+    "diagonals": Key(str, "kuhn", one_of("kuhn", "unstructured")),
 }
 
 

@@ -143,3 +143,31 @@ def test_errors_against_exact_functions(meshes):
     errors = exact_errors(mesh.points, mesh.triangles, np.zeros((len(x), 2)), [ramp, linear])
     assert errors["L2"] ** 2 == pytest.approx(64 / 3 + 212 / 3, rel=ROUND_OFF)
     assert errors["H1"] ** 2 == pytest.approx(AREA * (1 + 5), rel=ROUND_OFF)
+
+
+def test_point_location_in_unstructured_tetrahedra_reproduces_linear_fields(tmp_path):
+    """The error transfer on non-nested 3D meshes (norms.tetrahedron_weights): P1 interpolation
+    is exact for a linear field at any point; on a Kuhn mesh it finds the tetrahedra the
+    grid-based kuhn_weights finds, with the same weights."""
+    from harness.box_mesh import grid_index, kuhn_box, kuhn_weights
+    from harness.norms import tetrahedron_weights
+
+    box = load_scene(Path(__file__).parents[1] / "cases" / "hard" / "unstructured3d.toml").geometry
+    raw = meshio.read(build_mesh(box, 4, tmp_path).path)
+    coarse = Fields(raw.points, np.zeros((0, 3), dtype=int), {}, tmp_path, raw.cells_dict["tetra"])
+    at = np.random.default_rng(1).uniform([0, 0, 0], box.lengths, (500, 3))
+    at = np.vstack([at, raw.points[:50]])  # mesh nodes too (on faces, edges, corners)
+    nodes, w = tetrahedron_weights(coarse, at)
+    linear = lambda x: 1.0 + 2.0 * x[..., 0] - 3.0 * x[..., 1] + 0.5 * x[..., 2]
+    assert np.allclose(w.sum(axis=1), 1.0) and (w >= -1e-5).all()
+    assert np.allclose(np.einsum("nk,nk->n", w, linear(raw.points[nodes])), linear(at), rtol=0, atol=1e-10)
+
+    kuhn = kuhn_box(box.lengths, 4, box.role_of)
+    structured = Fields(kuhn.points, np.zeros((0, 3), dtype=int), {}, tmp_path, kuhn.tetrahedra)
+    inside = at[:500]
+    grid, spacing = grid_index(kuhn.points)
+    expected_nodes, expected_w = kuhn_weights(kuhn.points, grid, spacing, inside)
+    got_nodes, got_w = tetrahedron_weights(structured, inside)
+    value = np.random.default_rng(2).normal(size=len(kuhn.points))  # any P1 field
+    assert np.allclose(np.einsum("nk,nk->n", got_w, value[got_nodes]),
+                       np.einsum("nk,nk->n", expected_w, value[expected_nodes]), atol=1e-12)
