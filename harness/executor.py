@@ -253,11 +253,16 @@ def from_args(args: Any) -> Iterator[DaskExecutor | None]:
         yield dask
 
 
-def each(pool: DaskExecutor | None, fn: Callable[..., T], items: Sequence[Any]) -> list[T]:
-    """fn(item) for every item, in order: side by side on the cluster, else one after another."""
+def each(pool: DaskExecutor | None, fn: Callable[..., T], items: Sequence[Any],
+         cost: Callable[[Any], float] | None = None) -> list[T]:
+    """fn(item) for every item, results in order: side by side on the cluster, else one after
+    another. With `cost` (an estimate of an item's work) the cluster gets the costliest first
+    (longest processing time first), so that no long task starts last and runs alone."""
     if pool is None:
         return [fn(item) for item in items]
-    futures = [pool.submit(fn, item) for item in items]
+    order = sorted(range(len(items)), key=lambda i: -cost(items[i])) if cost else range(len(items))
+    submitted = {i: pool.submit(fn, items[i]) for i in order}
+    futures = [submitted[i] for i in range(len(items))]
     try:
         return [future.result() for future in futures]
     except (RunError, SceneError, EnvironmentFault):

@@ -201,3 +201,23 @@ def test_stress_summaries_are_compared_to_round_off_not_bit_for_bit():
     other["status"] = ["converged", "converged"]
     assert not same_summary(table, worse) and not same_summary(table, other)
     assert not same_summary(table, table.iloc[:1]) and not same_summary(table, table.drop(columns=["newton"]))
+
+
+def test_each_gives_a_cluster_the_costliest_items_first_and_returns_them_in_order():
+    """Longest processing time first: a long case submitted last would run alone at the end."""
+    from harness.executor import each
+
+    class Recorder:  # DaskExecutor's submit, run at once, remembering the order
+        def __init__(self) -> None:
+            self.order: list[int] = []
+
+        def submit(self, fn, item):
+            self.order.append(item)
+            done = fn(item)
+            return type("Done", (), {"result": lambda self: done})()
+
+    pool = Recorder()
+    items = [3, 1, 4, 1, 5, 9, 2, 6]
+    assert each(pool, lambda x: 10 * x, items, cost=lambda x: x) == [10 * x for x in items]
+    assert pool.order == sorted(items, reverse=True)
+    assert each(None, lambda x: 10 * x, items, cost=lambda x: x) == [10 * x for x in items]

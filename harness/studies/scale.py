@@ -107,7 +107,7 @@ def stress_table(levels: tuple[int, ...], clusters: Sequence[str], repeats: int,
     wall time, the cluster's start-up (scheduler, workers, their imports) timed apart, and
     whether every summary equals the default's but for the machine's measurements."""
     from harness import executor as executors
-    from harness.studies.stress import case_files, run_case, summary_row
+    from harness.studies.stress import case_cost, case_files, run_case, summary_row
 
     rows, summaries = [], {}
     for how in (None, *clusters):
@@ -122,7 +122,7 @@ def stress_table(levels: tuple[int, ...], clusters: Sequence[str], repeats: int,
             for _ in range(repeats):
                 start = time.perf_counter()
                 results = executors.each(pool, lambda case: run_case(case, layout, True, levels or None),
-                                         case_files([]))
+                                         case_files([]), cost=lambda case: case_cost(case, levels or None))
                 walls.append(time.perf_counter() - start)
                 table = pd.DataFrame([summary_row(result) for result in results])
                 measured = [c for c in table.columns if "wall" in c or "rss" in c]

@@ -230,6 +230,17 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
     executor.add_arguments(parser)
 
 
+def case_cost(case: Path, levels: Sequence[int] | None = None) -> float:
+    """A case's work, for the order a cluster takes the cases in: its finest level's unknowns
+    (the guards' estimate), which a direct solve's cost grows with."""
+    from harness.guards import geometry_depth, memory_estimate
+
+    scene = load_scene(case)
+    geometry = scene.geometry
+    return memory_estimate(geometry.width, geometry.height, max(levels or scene.levels), scene.effects,
+                           scene.element, geometry_depth(geometry))[0]
+
+
 def case_files(names: Sequence[str]) -> list[Path]:
     files = sorted(HARD.glob("*.toml"))
     if names:
@@ -253,7 +264,7 @@ def run(args: argparse.Namespace) -> int:
     began = time.perf_counter()
     with executor.from_args(args) as pool:  # each case a task, side by side, on a Dask cluster
         results = executor.each(pool, lambda case: timed_case(case, layout, args.force, args.levels),
-                                case_files(args.cases))
+                                case_files(args.cases), cost=lambda case: case_cost(case, args.levels))
     for result, seconds in results:
         row = summary_row(result)
         rows.append(row)
