@@ -201,6 +201,10 @@ def test_stress_summaries_are_compared_to_round_off_not_bit_for_bit():
     other["status"] = ["converged", "converged"]
     assert not same_summary(table, worse) and not same_summary(table, other)
     assert not same_summary(table, table.iloc[:1]) and not same_summary(table, table.drop(columns=["newton"]))
+    # max sigma_nu near zero: its round-off judged against the row's pressure scale.
+    sigma = pd.DataFrame({"max_sigma_nu": [-8.2032e-08, float("nan")], "sigma_nu_scale": [100.0, 100.0]})
+    moved = sigma.assign(max_sigma_nu=[-8.2034e-08, float("nan")])
+    assert same_summary(sigma, moved) and not same_summary(sigma, sigma.assign(max_sigma_nu=[-1e-6, float("nan")]))
 
 
 def test_each_gives_a_cluster_the_costliest_items_first_and_returns_them_in_order():

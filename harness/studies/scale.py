@@ -85,16 +85,27 @@ def mpi_table(case: Path, levels: tuple[int, ...], ranks: Sequence[int], layout:
     return pd.DataFrame(rows)
 
 
+# Columns near zero whose round-off is judged against the row's own scale (the one its
+# physical check uses, harness/checks.py): max sigma_nu is -1e-7 N/m^2 where the contact
+# pressure is 100, and moves by 2e-12 between two runs of the 3D unstructured case.
+ROW_SCALES = {"max_sigma_nu": "sigma_nu_scale"}
+
+
 def same_summary(a: pd.DataFrame, b: pd.DataFrame, rtol: float = 1e-5, atol: float = 1e-12) -> bool:
-    """Equal stress summaries: text columns exactly, numbers to rtol/atol. Not bit for bit:
-    gmsh meshes the unstructured case (cases/hard/unstructured.toml) a little differently
-    from process to process, which moves its figures at round-off level."""
+    """Equal stress summaries: text columns exactly, numbers to rtol/atol (ROW_SCALES' columns
+    to 1e-9 of their row's scale). Not bit for bit: the unstructured cases are not
+    bit-reproducible across processes (gmsh's 2D mesh), nor is a level pipelined or not
+    (round-off of the sparse solver's kernels), which moves near-zero figures."""
     if list(a.columns) != list(b.columns) or len(a) != len(b):
         return False
     for column in a.columns:
         x, y = a[column], b[column]
         if pd.api.types.is_numeric_dtype(x) and pd.api.types.is_numeric_dtype(y):
-            if not np.allclose(x.to_numpy(float), y.to_numpy(float), rtol=rtol, atol=atol, equal_nan=True):
+            u, v = x.to_numpy(float), y.to_numpy(float)
+            scale = ROW_SCALES.get(column)
+            floor = np.maximum(atol, 1e-9 * np.abs(a[scale].to_numpy(float))) if scale in a.columns else atol
+            same = (np.abs(u - v) <= floor + rtol * np.abs(v)) | (np.isnan(u) & np.isnan(v))
+            if not same.all():
                 return False
         elif not x.astype(str).equals(y.astype(str)):
             return False
