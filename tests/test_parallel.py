@@ -12,6 +12,7 @@ import numpy as np
 import pytest
 
 from harness.errors import SceneError
+from harness.fields import read_state
 from harness.launcher import IDP_PATH, MPI_PLUGIN_PATH, Ranks, merge_records, without_newton_steps
 from harness.scene import load_scene
 from physics_runs import CASES, solve
@@ -28,17 +29,6 @@ def mpi_missing() -> str:
     if not (Path(MPI_PLUGIN_PATH) / "gmsh.so").is_file():
         return f"no MPI plugins in {MPI_PLUGIN_PATH}"
     return ""
-
-
-def read_state(path: Path) -> list[np.ndarray]:
-    """state.txt: per field, a count then the values (FreeFEM's array output)."""
-    tokens = path.read_text().split()
-    fields, i = [], 0
-    while i < len(tokens):
-        count = int(tokens[i])
-        fields.append(np.array(tokens[i + 1:i + 1 + count], dtype=float))
-        i += 1 + count
-    return fields
 
 
 @pytest.mark.skipif(bool(mpi_missing()), reason=mpi_missing() or "-")

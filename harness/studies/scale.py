@@ -24,21 +24,11 @@ from harness.arguments import level_list
 from harness.atomic import write_atomic
 from harness.errors import RunError
 from harness.executor import LevelChain, LocalExecutor
+from harness.fields import read_state
 from harness.layout import REPO, Layout
 from harness.scene import load_scene
 
 CASES = REPO / "cases"
-
-
-def read_state(path: Path) -> list[np.ndarray]:
-    """state.txt (output.idp): per field, a count then the values."""
-    tokens = path.read_text().split()
-    fields, i = [], 0
-    while i < len(tokens):
-        count = int(tokens[i])
-        fields.append(np.array(tokens[i + 1:i + 1 + count], dtype=float))
-        i += 1 + count
-    return fields
 
 
 def mpi_table(case: Path, levels: tuple[int, ...], ranks: Sequence[int], layout: Layout) -> pd.DataFrame:
