@@ -57,6 +57,8 @@ class Failure(enum.Enum):
     BAD_INITIAL_GUESS = (13, "unknown initial guess")
     INVALID_MATERIAL = (14, "invalid material")
     BAD_DECOMPOSITION = (15, "MPI decomposition rejected")
+    BAD_SOLVER_OPTIONS = (16, "PETSc rejected run.petsc_options")
+    LINEAR_SOLVER = (17, "the Krylov solver did not converge")
     TIMEOUT = (None, "timed out")
     KILLED = (None, "killed by a signal")
     NO_OUTPUT = (None, "FreeFEM wrote no readable output")
@@ -77,6 +79,11 @@ class Failure(enum.Enum):
         """A failure of Newton itself (the scheme ran), as opposed to the software around it."""
         return self in (Failure.DIVERGED, Failure.NAN, Failure.MAX_ITERATIONS, Failure.NOT_CONVERGED)
 
+    @property
+    def bad_input(self) -> bool:
+        """The run failed on what the user wrote (harness exit code INPUT), not in the solve."""
+        return self is Failure.BAD_SOLVER_OPTIONS
+
     @classmethod
     def from_code(cls, code: int) -> Failure:
         return next((f for f in cls if f.code == code), cls.OTHER)
@@ -84,7 +91,8 @@ class Failure(enum.Enum):
 
 # The codes FreeFEM scripts of this project raise themselves (the others are FreeFEM's own).
 SCRIPT_FAILURES = (Failure.DIVERGED, Failure.NAN, Failure.MAX_ITERATIONS, Failure.BAD_INITIAL_GUESS,
-                   Failure.INVALID_MATERIAL, Failure.BAD_DECOMPOSITION)
+                   Failure.INVALID_MATERIAL, Failure.BAD_DECOMPOSITION, Failure.BAD_SOLVER_OPTIONS,
+                   Failure.LINEAR_SOLVER)
 
 
 def contract_idp() -> str:

@@ -77,6 +77,8 @@ def exit_code(exc: BaseException) -> ExitCode:
         return ExitCode.VERDICT
     if isinstance(exc, (EnvironmentFault, OSError, MemoryError)):
         return ExitCode.ENVIRONMENT
+    if isinstance(exc, RunError) and exc.failure.bad_input:
+        return ExitCode.INPUT
     if isinstance(exc, (RunError, FieldsError)):
         return ExitCode.RUN
     if isinstance(exc, (SceneError, MeshError, HarnessError)):

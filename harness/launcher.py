@@ -63,6 +63,9 @@ def check_parallel(scene: Any) -> None:
         return
     if scene.element != "P1":
         raise SceneError("run.ranks > 1 needs scene.element = P1 (the partition of unity is P1)")
+    if scene.linear_solver == "petsc":
+        raise SceneError('run.ranks > 1 factorises each subdomain with a sparse direct solver: use run.linear_solver '
+                         '= "mumps" (or umfpack64) there; "petsc" solves on one rank')
     if Unknowns(scene.effects, scene.dimension).staggered:
         raise SceneError("run.ranks > 1 solves the monolithic Newton system only: this scene's theta is staggered "
                          "(thermal without thermal_contact); solve it on one rank")

@@ -11,7 +11,7 @@ from dataclasses import dataclass
 from pathlib import Path
 from typing import Any
 
-from harness import freefem, launcher
+from harness import freefem, launcher, petsc_plugin
 from harness.atomic import write_atomic
 from harness.contract import Failure
 from harness.cache import cached_record, run_inputs, sha256_file, write_checksums
@@ -246,12 +246,15 @@ def solver_inputs(
     On several ranks (run.ranks > 1) the text is the distributed scheme's, unless `sequential`."""
     macros = {**manufactured_macros(scene, layout), **scene.reference_macros()}
     parallel = launcher.ranks_of(scene).parallel and not sequential
+    petsc = scene.linear_solver == "petsc"
     text = main_script(scene.material, scene.effects, layout, element=scene.element, macros=macros,
-                       linear_solver=scene.linear_solver,
+                       linear_solver=scene.linear_solver, petsc_plugin=petsc_plugin.library() if petsc else None,
                        scheme=layout.freefem / launcher.PARALLEL_SCHEME if parallel else None,
                        dimension=scene.dimension)
     options = ["-mesh", str(mesh.resolve()), "-out", str(out.resolve() if out else "-"), "-n", str(n)]
     options += freefem.scene_options(scene.solver_parameters(), guess)
+    if petsc:
+        options += ["-run.petsc_options", scene.petsc_options]
     if start:
         state = str(start.state) if str(start.state) == "-" else str(start.state.resolve())
         options += ["-init.mesh", str(start.mesh.resolve()), "-init.state", state]

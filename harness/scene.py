@@ -11,10 +11,12 @@ from pathlib import Path
 from typing import Any, Iterable
 
 from harness.errors import SceneError
+from harness.petsc_plugin import default_options
 from harness.box import Box, parse_box
 from harness.schema import EFFECTS, REQUIRED, SCHEMA, SOLVER_SECTIONS, Key, effect_of, geometry_keys
 from harness.sections import sections_of
 from harness.segments import Geometry, parse_geometry
+from harness.unknowns import Unknowns
 
 
 @dataclass(frozen=True)
@@ -73,6 +75,12 @@ class Scene:
         return self.sections.run.linear_solver
 
     @property
+    def petsc_options(self) -> str:
+        """run.petsc_options, or the measured default of the scene's dimension when blank."""
+        fields = tuple(f.name for f in Unknowns(self.effects, self.dimension).newton)
+        return self.sections.run.petsc_options.strip() or default_options(self.dimension, fields)
+
+    @property
     def levels(self) -> tuple[int, ...]:
         return tuple(self.sections.study.levels)
 
@@ -105,6 +113,7 @@ class Scene:
             "initial_guess": self.initial_guess,
             "element": self.element,
             "linear_solver": self.linear_solver,
+            **({"petsc_options": self.petsc_options} if self.linear_solver == "petsc" else {}),
             "effects": list(self.effects),
             "geometry": copy.deepcopy(self.table["geometry"]),
             **self.solver_parameters(),

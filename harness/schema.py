@@ -16,7 +16,9 @@ from harness.contract import ROLE_LABELS  # noqa: F401  (re-exported: the roles 
 SOLVER_SECTIONS = ("loads", "contact", "electric_contact", "thermal_contact", "newton")
 # Sparse direct solvers FreeFEM offers on Debian: name -> (plugin to load, or "" for the
 # built-in UMFPACK; the name run.json reports).
-LINEAR_SOLVERS = {"mumps": ("MUMPS_seq", "MUMPS_seq"), "umfpack": ("", "UMFPACK"), "umfpack64": ("UMFPACK64", "UMFPACK64")}
+LINEAR_SOLVERS = {"mumps": ("MUMPS_seq", "MUMPS_seq"), "umfpack": ("", "UMFPACK"), "umfpack64": ("UMFPACK64", "UMFPACK64"),
+                  # The project's PETSc plugin (harness/petsc_plugin.py): Krylov + run.petsc_options.
+                  "petsc": ("", "PETSc")}
 
 REQUIRED = object()
 
@@ -47,6 +49,17 @@ def one_of(*choices: str) -> Check:
         return None if v in choices else f"must be one of {', '.join(choices)}"
 
     return check
+
+
+def petsc_option_words(v: str) -> str | None:
+    """PETSc's options string: it must start with an option ("-name"); PETSc itself judges
+    names and values (an unknown or unused one ends the run with exit code INPUT)."""
+    words = v.split()
+    if words and not (words[0].startswith("-") and words[0][1:2].isalpha()):
+        return f"must be PETSc options like '-ksp_type gmres -pc_type gamg', not starting with {words[0]!r}"
+    if any(not w.isprintable() or '"' in w for w in words):
+        return "must be PETSc options (printable words without quotes)"
+    return None
 
 
 def positive_ints(v: list) -> str | None:
@@ -173,6 +186,10 @@ SCHEMA: dict[str, dict[str, Key]] = {
         # fastest here at every level (results/bench/) and, unlike the built-in UMFPACK
         # (32-bit indices), reaches h = 1/256.
         "linear_solver": Key(str, "mumps", one_of(*LINEAR_SOLVERS)),
+        # With linear_solver = "petsc": PETSc's options for the Newton system ("-ksp_type gmres
+        # -pc_type fieldsplit ..."); blank: the measured default of the scene's dimension
+        # (harness/petsc_plugin.py DEFAULT_OPTIONS, docs/solvers.md).
+        "petsc_options": Key(str, "", petsc_option_words),
         # MPI ranks of one solve (freefem/parallel.idp, harness/launcher.py); 1: the sequential scheme.
         "ranks": Key(int, 1, positive),
         # How ranks are started; {ranks} is replaced. On a SLURM cluster: "srun -n {ranks} FreeFem++-mpi".

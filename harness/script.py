@@ -30,10 +30,20 @@ def main_script(
     linear_solver: str = "mumps",
     dimension: int = 2,
     scheme: Path | None = None,
+    petsc_plugin: Path | None = None,
 ) -> str:
+    """`petsc_plugin`: the built plugin (harness/petsc_plugin.py), for linear_solver "petsc"."""
     lines = ["// Written by the harness (harness/script.py); edit the scene, not this file."]
     plugin, name = LINEAR_SOLVERS[linear_solver]
-    if plugin:
+    if linear_solver == "petsc":
+        if petsc_plugin is None:
+            raise ValueError("linear_solver 'petsc' needs the built plugin's path")
+        # The Newton system goes to PETSc (freefem/petsc_linear_solver.idp); the few direct
+        # solves left (a staggered theta, the pressed start) to FreeFEM's UMFPACK: a MUMPS
+        # plugin would bring a second MUMPS library into the process beside PETSc's.
+        lines += [f'load "{petsc_plugin.with_suffix("")}"', "macro PETSCSOLVER 1 //",
+                  "macro LINEARSOLVER UMFPACK //", f'string linearSolverName = "{name}";']
+    elif plugin:
         # Loading the plugin makes it FreeFEM's `sparsesolver`.
         lines += [f'load "{plugin}"', "macro LINEARSOLVER sparsesolver //", f'string linearSolverName = "{name}";']
     lines += [f"macro {effect_macro(e)} 1 //" for e in effects]

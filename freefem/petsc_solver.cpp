@@ -1,0 +1,483 @@
+// A FreeFEM plugin of this project: PETSc's Krylov solvers and preconditioners for a
+// FreeFEM sparse matrix (run.linear_solver = "petsc", freefem/linear_solver.idp).
+// Built on first use by harness/petsc_plugin.py against Debian's PETSc (3.18).
+//
+// Debian's FreeFEM has no PETSc interface of its own (its upstream one needs HPDDM), so
+// this one is deliberately small. A script creates a solver context from an options
+// string and the layout of its unknowns, then solves with it; PETSc's own options choose
+// everything else (-ksp_type, -pc_type fieldsplit, hypre, gamg, mumps with BLR, ...):
+//
+//   int id = petscCreate(options, "u phi theta", sizes, blocks, coords);
+//   int its = petscSolve(id, A, b, x, rtol, reuse);   // x = A^-1 b to rtol (true residual)
+//   petscStats(id, stats);                             // iterations, residual, times
+//   petscDestroy(id);
+//
+// The unknowns are FreeFEM's Newton vector: the fields concatenated in order, a vector
+// field's components interleaved per node. Each field becomes an index set named after
+// it, so that "-pc_type fieldsplit -fieldsplit_u_pc_type gamg" addresses the displacement;
+// a field's block size (the components per node) is the index set's, and the rigid-body
+// modes built from `coords` (the displacement's nodal coordinates, interleaved as its
+// dofs) are its near-null space, which smoothed aggregation needs for elasticity.
+//
+// Every PETSc error is caught by an error handler that keeps its message: the calls
+// return a negative code and the message goes to stdout as one "error:" line, so the
+// script can exit with a code of the project's contract (freefem/contract.idp).
+#include <petscksp.h>
+#include <chrono>
+#include <cctype>
+#include <cmath>
+#include <cstring>
+#include <sstream>
+#include <string>
+#include <vector>
+#include "ff++.hpp"
+#include "AFunction_ext.hpp"
+
+namespace {
+
+// Return codes of the calls (freefem/linear_solver.idp maps them to exit codes).
+const long kNotConverged = -1;   // the Krylov method stopped before rtol (stats: reason)
+const long kPetscError = -2;     // PETSc refused: a bad option, a failed set-up
+const long kUnusedOption = -3;   // an option PETSc never read (misspelt, or for another solver)
+
+std::string lastMessage;         // the first message of the last PETSc error
+
+PetscErrorCode keepMessage(MPI_Comm, int, const char *, const char *, PetscErrorCode code,
+                           PetscErrorType type, const char *message, void *) {
+  if (type == PETSC_ERROR_INITIAL) lastMessage = message ? message : "";
+  return code;
+}
+
+// PETSc and, without FreeFem++-mpi, MPI are started once, at the first context.
+bool started = false;
+PetscErrorCode start() {
+  if (started) return 0;
+  PetscErrorCode ierr = PetscInitializeNoArguments();
+  if (ierr) return ierr;
+  PetscPushErrorHandler(keepMessage, nullptr);
+  started = true;
+  return 0;
+}
+
+double now() {
+  return std::chrono::duration<double>(std::chrono::steady_clock::now().time_since_epoch()).count();
+}
+
+struct Context {
+  KSP ksp = nullptr;
+  Mat op = nullptr;        // the operator of the last solve
+  Mat pre = nullptr;       // the matrix the preconditioner was built from
+  std::string prefix;      // of this context's options in PETSc's database
+  std::vector<std::string> names;
+  std::vector<IS> fields;
+  std::vector<PetscInt> dirichlet;   // rows of the last operator made identity rows
+  std::vector<PetscInt> seed;        // the dofs of the contact nodes (Gamma_3)
+  IS zone = nullptr;                 // seed grown by -contact_zone_layers layers of the matrix graph
+  MatNullSpace rigid = nullptr;
+  PetscInt size = 0;
+  bool checkedOptions = false;
+  // statistics
+  PetscInt lastIts = 0, totalIts = 0, setups = 0, solves = 0;
+  double lastResidual = 0, lastSetup = 0, lastSolve = 0, totalSetup = 0, totalSolve = 0;
+  int lastReason = 0;
+};
+std::vector<Context *> contexts;
+
+Context *context(long id) {
+  if (id < 0 || id >= (long)contexts.size() || !contexts[id]) {
+    lastMessage = "no PETSc solver context " + std::to_string(id);
+    return nullptr;
+  }
+  return contexts[id];
+}
+
+long fail(PetscErrorCode ierr, const std::string &where) {
+  std::string text = lastMessage;
+  if (text.empty()) {
+    const char *generic = nullptr;
+    PetscErrorMessage(ierr, &generic, nullptr);
+    text = generic ? generic : "unknown error";
+  }
+  // One line: PETSc's messages may carry newlines.
+  for (char &c : text) if (c == '\n') c = ' ';
+  std::cout << "error: PETSc " << where << ": " << text << std::endl;
+  lastMessage.clear();
+  return kPetscError;
+}
+
+#define TRY(call, where) do { PetscErrorCode ierr_ = (call); if (ierr_) return fail(ierr_, where); } while (0)
+
+// A copy of FreeFEM's matrix as a sequential AIJ matrix (rows sorted, as PETSc wants them).
+PetscErrorCode toPetsc(Matrice_Creuse<double> *source, Mat *out) {
+  MatriceMorse<double> *a = source->A ? dynamic_cast<MatriceMorse<double> *>(&*source->A) : nullptr;
+  if (!a) { lastMessage = "the matrix is empty or not a sparse matrix"; return PETSC_ERR_ARG_WRONG; }
+  if (a->half) { lastMessage = "a symmetric (half-stored) matrix is not supported"; return PETSC_ERR_SUP; }
+  if (a->n != a->m) { lastMessage = "the matrix is not square"; return PETSC_ERR_ARG_SIZ; }
+  a->CSR();
+  std::vector<PetscInt> rows(a->p, a->p + a->n + 1), cols(a->j, a->j + a->nnz);
+  PetscCall(MatCreate(PETSC_COMM_SELF, out));
+  PetscCall(MatSetSizes(*out, a->n, a->n, a->n, a->n));
+  PetscCall(MatSetType(*out, MATSEQAIJ));
+  PetscCall(MatSeqAIJSetPreallocationCSR(*out, rows.data(), cols.data(), a->aij));
+  return 0;
+}
+
+// FreeFEM's Dirichlet rows carry tgv (>= 1e25) on the diagonal, so the increment there is
+// -(rest of the row)/tgv, zero to round-off. A preconditioner sees rows 1e30 times larger
+// than the others (AMG's strength of connection and smoothers, a Schur complement's diagonal);
+// such rows and their columns become identity ones instead, the increment there being zero
+// either way (the Newton residual is zero on Dirichlet rows, and a zero increment moves no
+// other row). The right-hand side is zeroed there to match.
+const double kDirichletDiagonal = 1e25;
+PetscErrorCode dirichletRows(Mat a, std::vector<PetscInt> *rows) {
+  Vec d;
+  PetscCall(MatCreateVecs(a, &d, nullptr));
+  PetscCall(MatGetDiagonal(a, d));
+  const PetscScalar *v;
+  PetscInt n;
+  PetscCall(VecGetLocalSize(d, &n));
+  PetscCall(VecGetArrayRead(d, &v));
+  rows->clear();
+  for (PetscInt i = 0; i < n; ++i) if (std::abs(v[i]) >= kDirichletDiagonal) rows->push_back(i);
+  PetscCall(VecRestoreArrayRead(d, &v));
+  PetscCall(VecDestroy(&d));
+  return 0;
+}
+
+// The fields as index sets on the preconditioner (fieldsplit only; other PCs ignore them).
+// By default each field is a split of its own, in the Newton vector's order. The plugin's
+// option -fieldsplit_groups gives the splits and their order instead: "theta,u+phi" is two
+// splits, theta first, then u and phi together, named "uphi" (-fieldsplit_uphi_pc_type ...).
+PetscErrorCode attachFields(Context &c, PC pc) {
+  PetscBool split = PETSC_FALSE, composite = PETSC_FALSE, given = PETSC_FALSE;
+  PetscCall(PetscObjectTypeCompare((PetscObject)pc, PCCOMPOSITE, &composite));
+  if (composite) {
+    PetscInt count;
+    PetscCall(PCCompositeGetNumberPC(pc, &count));
+    for (PetscInt i = 0; i < count; ++i) {
+      PC sub;
+      PetscCall(PCCompositeGetPC(pc, i, &sub));
+      PetscCall(attachFields(c, sub));
+    }
+    return 0;
+  }
+  PetscCall(PetscObjectTypeCompare((PetscObject)pc, PCFIELDSPLIT, &split));
+  char spec[256] = "";
+  PetscCall(PetscOptionsGetString(nullptr, c.prefix.c_str(), "-fieldsplit_groups", spec, sizeof(spec), &given));
+  if (!split) return 0;
+  if (!given) {
+    for (size_t k = 0; k < c.fields.size(); ++k) PetscCall(PCFieldSplitSetIS(pc, c.names[k].c_str(), c.fields[k]));
+    return 0;
+  }
+  std::string groups = spec;
+  for (char &ch : groups) if (ch == ',') ch = ' ';
+  std::istringstream words(groups);
+  for (std::string group; words >> group;) {
+    std::string name;
+    IS is = nullptr;
+    std::string members = group;
+    for (char &ch : members) if (ch == '+') ch = ' ';
+    std::istringstream fields(members);
+    for (std::string field; fields >> field;) {
+      size_t k = 0;
+      while (k < c.names.size() && c.names[k] != field) ++k;
+      if (k == c.names.size()) {
+        lastMessage = "-fieldsplit_groups names a field \"" + field + "\" this scene does not solve for";
+        if (is) ISDestroy(&is);
+        return PETSC_ERR_ARG_WRONG;
+      }
+      name += field;
+      if (!is) {
+        PetscCall(PetscObjectReference((PetscObject)c.fields[k]));
+        is = c.fields[k];
+      } else {
+        IS both;
+        PetscCall(ISExpand(is, c.fields[k], &both));
+        PetscCall(ISDestroy(&is));
+        is = both;
+      }
+    }
+    PetscCall(PCFieldSplitSetIS(pc, name.c_str(), is));
+    PetscCall(ISDestroy(&is));
+  }
+  return 0;
+}
+
+// The contact zone: the contact nodes' dofs grown by `layers` layers of the matrix graph
+// (every field of the nodes within `layers` elements of Gamma_3, once the coupling blocks
+// are crossed). The contact conductances couple u_nu to phi and theta there with a gain of
+// k/eps (1e5 in the benchmark's scaled units), which no split of the fields can see.
+PetscErrorCode contactZone(Mat a, const std::vector<PetscInt> &seed, PetscInt layers, IS *zone) {
+  PetscInt n;
+  PetscCall(MatGetSize(a, &n, nullptr));
+  std::vector<char> in(n, 0);
+  std::vector<PetscInt> front(seed);
+  for (PetscInt i : seed) in[i] = 1;
+  for (PetscInt layer = 0; layer < layers; ++layer) {
+    std::vector<PetscInt> next;
+    for (PetscInt i : front) {
+      PetscInt count;
+      const PetscInt *cols;
+      PetscCall(MatGetRow(a, i, &count, &cols, nullptr));
+      for (PetscInt k = 0; k < count; ++k)
+        if (!in[cols[k]]) { in[cols[k]] = 1; next.push_back(cols[k]); }
+      PetscCall(MatRestoreRow(a, i, &count, &cols, nullptr));
+    }
+    front.swap(next);
+  }
+  std::vector<PetscInt> dofs;
+  for (PetscInt i = 0; i < n; ++i) if (in[i]) dofs.push_back(i);
+  PetscCall(ISCreateGeneral(PETSC_COMM_SELF, (PetscInt)dofs.size(), dofs.data(), PETSC_COPY_VALUES, zone));
+  return 0;
+}
+
+// Additive Schwarz sub-preconditioners (-pc_type asm, or one of a composite's) get the contact
+// zone as their one subdomain: a direct solve there corrects what a field split cannot.
+PetscErrorCode attachZone(Context &c, PC pc) {
+  PetscBool composite = PETSC_FALSE, additive = PETSC_FALSE;
+  PetscCall(PetscObjectTypeCompare((PetscObject)pc, PCCOMPOSITE, &composite));
+  if (composite) {
+    PetscInt count;
+    PetscCall(PCCompositeGetNumberPC(pc, &count));
+    for (PetscInt i = 0; i < count; ++i) {
+      PC sub;
+      PetscCall(PCCompositeGetPC(pc, i, &sub));
+      PetscCall(attachZone(c, sub));
+    }
+    return 0;
+  }
+  PetscCall(PetscObjectTypeCompare((PetscObject)pc, PCASM, &additive));
+  if (!additive) return 0;
+  if (!c.zone) {
+    PetscInt layers = 2;
+    PetscCall(PetscOptionsGetInt(nullptr, c.prefix.c_str(), "-contact_zone_layers", &layers, nullptr));
+    PetscCall(contactZone(c.op, c.seed, layers, &c.zone));
+  }
+  PetscCall(PCASMSetLocalSubdomains(pc, 1, &c.zone, &c.zone));
+  return 0;
+}
+
+// "-pc_type gamg -mat_mumps_icntl_14 -50" with prefix p_: "-p_pc_type gamg -p_mat_mumps_icntl_14 -50"
+// (an option is a word starting with '-' and a letter; a negative number is a value).
+std::string prefixed(const std::string &options, const std::string &prefix) {
+  std::istringstream words(options);
+  std::string out;
+  for (std::string w; words >> w;) {
+    if (w.size() > 1 && w[0] == '-' && std::isalpha((unsigned char)w[1])) w = "-" + prefix + w.substr(1);
+    out += w + " ";
+  }
+  return out;
+}
+
+long create(string *const &options, string *const &names, KN<long> *const &sizes, KN<long> *const &blocks,
+            KN<double> *const &coords, KN<double> *const &contact) {
+  TRY(start(), "start");
+  Context *c = new Context;
+  std::istringstream words(*names);
+  for (std::string w; words >> w;) c->names.push_back(w);
+  if (c->names.size() != (size_t)sizes->N() || sizes->N() != blocks->N()) {
+    std::cout << "error: PETSc solver: " << c->names.size() << " field names for " << sizes->N() << " sizes and "
+              << blocks->N() << " block sizes" << std::endl;
+    delete c;
+    return kPetscError;
+  }
+  // The options go into PETSc's database under a prefix of this context's own: objects
+  // PETSc creates on its own (the factor matrix of -pc_type lu, a fieldsplit's sub-solvers)
+  // read that database, with the prefix handed down.
+  c->prefix = "s" + std::to_string(contexts.size()) + "_";
+  TRY(PetscOptionsInsertString(nullptr, prefixed(*options, c->prefix).c_str()), "options \"" + *options + "\"");
+  PetscInt offset = 0;
+  for (long k = 0; k < sizes->N(); ++k) {
+    PetscInt n = (*sizes)[k], bs = (*blocks)[k];
+    IS is;
+    TRY(ISCreateStride(PETSC_COMM_SELF, n, offset, 1, &is), "index set");
+    TRY(ISSetBlockSize(is, bs), "block size of field " + c->names[k]);
+    // The rigid-body modes of the displacement (the first vector field), in its own numbering.
+    if (bs > 1 && !c->rigid && coords->N() == n) {
+      Vec xyz;
+      TRY(VecCreateSeq(PETSC_COMM_SELF, n, &xyz), "coordinates");
+      TRY(VecSetBlockSize(xyz, bs), "coordinates");
+      PetscScalar *v;
+      TRY(VecGetArray(xyz, &v), "coordinates");
+      for (PetscInt i = 0; i < n; ++i) v[i] = (*coords)[i];
+      TRY(VecRestoreArray(xyz, &v), "coordinates");
+      TRY(MatNullSpaceCreateRigidBody(xyz, &c->rigid), "rigid-body modes");
+      TRY(VecDestroy(&xyz), "coordinates");
+      TRY(PetscObjectCompose((PetscObject)is, "nearnullspace", (PetscObject)c->rigid), "near-null space");
+    }
+    c->fields.push_back(is);
+    offset += n;
+  }
+  c->size = offset;
+  for (long i = 0; i < contact->N() && i < offset; ++i) if ((*contact)[i] != 0) c->seed.push_back(i);
+  TRY(KSPCreate(PETSC_COMM_SELF, &c->ksp), "KSP");
+  TRY(KSPSetOptionsPrefix(c->ksp, c->prefix.c_str()), "options");
+  // Defaults an inexact Newton needs: GMRES on the true (unpreconditioned) residual, which
+  // right preconditioning gives, so that rtol means ||b - A x|| <= rtol ||b||.
+  TRY(KSPSetType(c->ksp, KSPGMRES), "KSP type");
+  TRY(KSPSetPCSide(c->ksp, PC_RIGHT), "PC side");
+  TRY(KSPGMRESSetRestart(c->ksp, 100), "GMRES restart");
+  TRY(KSPSetTolerances(c->ksp, 1e-8, 0.0, 1e50, 1000), "tolerances");
+  TRY(KSPSetFromOptions(c->ksp), "options \"" + *options + "\"");
+  PC pc;
+  TRY(KSPGetPC(c->ksp, &pc), "fields");
+  TRY(attachFields(*c, pc), "fields");
+  contexts.push_back(c);
+  return (long)contexts.size() - 1;
+}
+
+// The options of context c that PETSc never read, "-a, -b" (none: empty).
+PetscErrorCode unusedOptions(const Context &c, std::string *unused) {
+  PetscInt left;
+  char **names, **values;
+  PetscCall(PetscOptionsLeftGet(nullptr, &left, &names, &values));
+  for (PetscInt i = 0; i < left; ++i) {
+    std::string name = names[i];
+    if (name.compare(0, c.prefix.size(), c.prefix) == 0)
+      *unused += std::string(unused->empty() ? "" : ", ") + "-" + name.substr(c.prefix.size());
+  }
+  PetscCall(PetscOptionsLeftRestore(nullptr, &left, &names, &values));
+  return 0;
+}
+
+// x = A^-1 b to ||b - A x|| <= rtol ||b||, from x = 0.
+long solve(long const &id, Matrice_Creuse<double> *const &A, KN<double> *const &b, KN<double> *const &x,
+           double const &rtol, long const &reuse) {
+  Context *c = context(id);
+  if (!c) return fail(PETSC_ERR_ARG_OUTOFRANGE, "solve");
+  // reuse: 0 a new operator A and a preconditioner built from it; 1 the operator A with the
+  // preconditioner of an earlier matrix (a Newton tangent a few contact nodes away);
+  // 2 the last operator and preconditioner again (A is not read: no copy).
+  bool keepOperator = reuse >= 2 && c->op;
+  bool rebuild = !reuse || !c->pre;
+  if (!keepOperator) {
+    Mat next;
+    TRY(toPetsc(A, &next), "matrix");
+    TRY(dirichletRows(next, &c->dirichlet), "Dirichlet rows");
+    TRY(MatZeroRowsColumns(next, (PetscInt)c->dirichlet.size(), c->dirichlet.data(), 1.0, nullptr, nullptr),
+        "Dirichlet rows");
+    TRY(MatDestroy(&c->op), "matrix");
+    c->op = next;
+  }
+  PetscInt n;
+  TRY(MatGetSize(c->op, &n, nullptr), "matrix");
+  if (n != c->size || b->N() != n || x->N() != n) {
+    std::cout << "error: PETSc solve: sizes differ (matrix " << n << ", fields " << c->size << ", b " << b->N()
+              << ", x " << x->N() << ")" << std::endl;
+    return kPetscError;
+  }
+  if (rebuild) {
+    TRY(MatDestroy(&c->pre), "matrix");
+    TRY(PetscObjectReference((PetscObject)c->op), "matrix");
+    c->pre = c->op;
+    if (c->rigid && c->fields.size() == 1) TRY(MatSetNearNullSpace(c->pre, c->rigid), "near-null space");
+  }
+  TRY(KSPSetOperators(c->ksp, c->op, c->pre), "operators");
+  if (!c->zone) {
+    PC pc;
+    TRY(KSPGetPC(c->ksp, &pc), "contact zone");
+    TRY(attachZone(*c, pc), "contact zone");
+  }
+  TRY(KSPSetReusePreconditioner(c->ksp, rebuild ? PETSC_FALSE : PETSC_TRUE), "reuse");
+  TRY(KSPSetTolerances(c->ksp, rtol, 0.0, PETSC_DEFAULT, PETSC_DEFAULT), "tolerances");
+  double t0 = now();
+  if (rebuild) {
+    TRY(KSPSetUp(c->ksp), "set-up");
+    PC pc;
+    TRY(KSPGetPC(c->ksp, &pc), "set-up");
+    TRY(PCSetUp(pc), "preconditioner set-up");
+    c->lastSetup = now() - t0;
+    c->totalSetup += c->lastSetup;
+    ++c->setups;
+  } else {
+    c->lastSetup = 0;
+  }
+  Vec vb, vx;
+  TRY(VecCreateSeqWithArray(PETSC_COMM_SELF, 1, n, (PetscScalar *)(double *)*b, &vb), "vector");
+  TRY(VecCreateSeqWithArray(PETSC_COMM_SELF, 1, n, (PetscScalar *)(double *)*x, &vx), "vector");
+  for (PetscInt i : c->dirichlet) (*b)[i] = 0;
+  double t1 = now();
+  TRY(KSPSolve(c->ksp, vb, vx), "solve");
+  if (!c->checkedOptions) {
+    // Checked once, after the first solve: by then PETSc has read every option it will.
+    c->checkedOptions = true;
+    std::string unused;
+    TRY(unusedOptions(*c, &unused), "options");
+    if (!unused.empty()) {
+      std::cout << "error: PETSc option(s) " << unused
+                << " never used (misspelt, or for another solver or preconditioner)" << std::endl;
+      VecDestroy(&vb);
+      VecDestroy(&vx);
+      return kUnusedOption;
+    }
+  }
+  c->lastSolve = now() - t1;
+  c->totalSolve += c->lastSolve;
+  KSPConvergedReason reason;
+  TRY(KSPGetConvergedReason(c->ksp, &reason), "solve");
+  TRY(KSPGetIterationNumber(c->ksp, &c->lastIts), "solve");
+  // The true relative residual, whatever norm the Krylov method monitored.
+  Vec r;
+  PetscReal rn, bn;
+  TRY(VecDuplicate(vb, &r), "residual");
+  TRY(MatMult(c->op, vx, r), "residual");
+  TRY(VecAYPX(r, -1.0, vb), "residual");
+  TRY(VecNorm(r, NORM_2, &rn), "residual");
+  TRY(VecNorm(vb, NORM_2, &bn), "residual");
+  TRY(VecDestroy(&r), "residual");
+  TRY(VecDestroy(&vb), "vector");
+  TRY(VecDestroy(&vx), "vector");
+  c->lastResidual = bn > 0 ? rn / bn : rn;
+  c->lastReason = (int)reason;
+  c->totalIts += c->lastIts;
+  ++c->solves;
+  return reason > 0 ? (long)c->lastIts : kNotConverged;
+}
+
+// stats = [iterations, true relative residual, converged reason, set-up s, solve s,
+//          total iterations, total set-up s, total solve s, set-ups, solves] (at least 10 entries)
+long stats(long const &id, KN<double> *const &out) {
+  Context *c = context(id);
+  if (!c) return fail(PETSC_ERR_ARG_OUTOFRANGE, "stats");
+  double values[] = {(double)c->lastIts, c->lastResidual, (double)c->lastReason, c->lastSetup, c->lastSolve,
+                     (double)c->totalIts, c->totalSetup, c->totalSolve, (double)c->setups, (double)c->solves};
+  long count = sizeof(values) / sizeof(values[0]);
+  if (out->N() < count) out->resize(count);
+  for (long k = 0; k < count; ++k) (*out)[k] = values[k];
+  return 0;
+}
+
+long destroy(long const &id) {
+  Context *c = context(id);
+  if (!c) return 0;
+  KSPDestroy(&c->ksp);
+  MatDestroy(&c->op);
+  MatDestroy(&c->pre);
+  for (IS &is : c->fields) ISDestroy(&is);
+  MatNullSpaceDestroy(&c->rigid);
+  ISDestroy(&c->zone);
+  delete c;
+  contexts[id] = nullptr;
+  return 0;
+}
+
+// PETSc finalised before FreeFEM ends (and before FreeFem++-mpi's MPI_Finalize).
+void finish() {
+  for (long id = 0; id < (long)contexts.size(); ++id) destroy(id);
+  if (started) PetscFinalize();
+  started = false;
+}
+
+}  // namespace
+
+static void init() {
+  Global.Add("petscCreate", "(",
+             new OneOperator6_<long, string *, string *, KN<long> *, KN<long> *, KN<double> *, KN<double> *>(create));
+  Global.Add("petscSolve", "(",
+             new OneOperator6_<long, long, Matrice_Creuse<double> *, KN<double> *, KN<double> *, double, long>(solve));
+  Global.Add("petscStats", "(", new OneOperator2_<long, long, KN<double> *>(stats));
+  Global.Add("petscDestroy", "(", new OneOperator1_<long, long>(destroy));
+  ff_atend(finish);
+}
+
+LOADFUNC(init)
