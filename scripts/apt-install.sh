@@ -7,5 +7,8 @@ if [ "$(id -u)" -ne 0 ]; then
   sudo="sudo"
 fi
 echo "installing Debian packages: $* ..." >&2
-$sudo apt-get update -qq
+# One `apt-get update` per set-up: skipped when the package lists are less than an hour old.
+if [ -z "$(find /var/lib/apt/lists -maxdepth 1 -name '*Packages*' -mmin -60 2>/dev/null | head -1)" ]; then
+  $sudo apt-get update -qq
+fi
 $sudo env DEBIAN_FRONTEND=noninteractive apt-get install -y -qq "$@" >/dev/null

@@ -1,0 +1,129 @@
+"""run.linear_solver = "petsc" (freefem/petsc_solver.cpp, freefem/petsc_linear_solver.idp):
+the inexact Newton with PETSc's Krylov solvers reaches the direct solver's solution, for
+every effect set of the scenes in cases/, in 2D and 3D, with the Newton iteration count of
+the direct solver within one; a bad options string is one line and exit code 2; a plugin
+that cannot be built is one line and exit code 4."""
+
+from __future__ import annotations
+
+from pathlib import Path
+
+import numpy as np
+import pytest
+
+from harness import petsc_plugin
+from harness.cli import main
+from harness.contract import ExitCode
+from harness.errors import EnvironmentFault, SceneError
+from harness.faults import exit_code
+from harness.fields import read_state
+from harness.layout import Layout
+from harness.mesh import build_mesh
+from harness.run import run_level
+from harness.scene import load_scene
+from harness.unknowns import Unknowns
+
+CASES = Path(__file__).parents[1] / "cases"
+# Every scene's effect set (the 2D scenes) and both 3D scenes, at a coarse level.
+SCENES = [("elastic", 8), ("electroelastic", 8), ("thermoelastic", 8), ("heated", 8), ("paper", 8),
+          ("longcontact", 4), ("paper3d", 4), ("slab3d", 2)]
+# Preconditioners of the solver table (docs/solvers.md), on one scene each way.
+LU_MUMPS = "-ksp_type gmres -pc_type lu -pc_factor_mat_solver_type mumps"
+BLR = LU_MUMPS + " -mat_mumps_icntl_35 2 -mat_mumps_cntl_7 1e-8"
+
+
+def solve(root: Path, case: str, n: int, solver: str, options: str = ""):
+    overrides = [f'run.linear_solver="{solver}"', f'scene.name="{case}-{solver}-{abs(hash(options))}"']
+    if options:
+        overrides.append(f'run.petsc_options="{options}"')
+    scene = load_scene(CASES / f"{case}.toml", overrides)
+    layout = Layout(results=root)
+    mesh = build_mesh(scene.geometry, n, layout.meshes_dir(scene.name)).path
+    # A coarsest-level start as the scene's studies make it (zero or pressed).
+    guess = scene.sections.scene.coarsest_guess if scene.initial_guess == "coarser" else scene.initial_guess
+    scene = load_scene(CASES / f"{case}.toml", [*overrides, f'scene.initial_guess="{guess}"'])
+    return run_level(scene, mesh, n, layout)
+
+
+def assert_same_fields(mine, theirs, rtol: float = 1e-8) -> None:
+    for name, a, b in zip(("u", "phi", "theta"), read_state(mine.directory / "state.txt"),
+                          read_state(theirs.directory / "state.txt")):
+        scale = np.abs(b).max()
+        assert np.abs(a - b).max() <= rtol * max(scale, 1e-300), (name, np.abs(a - b).max() / scale)
+
+
+@pytest.mark.parametrize("case,n", SCENES)
+def test_petsc_reaches_the_direct_solution_with_the_same_newton_count(tmp_path, case, n):
+    direct = solve(tmp_path, case, n, "mumps")
+    petsc = solve(tmp_path, case, n, "petsc")
+    # Newton stops at a relative error of 1e-9 per field on either side; 1e-8 is the issue's bound.
+    assert_same_fields(petsc, direct)
+    assert abs(petsc.record.newton_iterations - direct.record.newton_iterations) <= 1
+    assert petsc.record.linear_solver.startswith("PETSc (")
+    assert petsc.record.converged
+
+
+@pytest.mark.parametrize("options", [LU_MUMPS, BLR])
+def test_mumps_through_petsc_with_and_without_block_low_rank(tmp_path, options):
+    direct = solve(tmp_path, "paper", 8, "mumps")
+    assert_same_fields(solve(tmp_path, "paper", 8, "petsc", options), direct)
+
+
+def test_the_default_options_follow_the_scenes_fields():
+    for case in ("elastic", "paper", "heated"):
+        scene = load_scene(CASES / f"{case}.toml", ['run.linear_solver="petsc"'])
+        fields = [f.name for f in Unknowns(scene.effects, scene.dimension).newton]
+        options = scene.petsc_options
+        assert options.startswith("-ksp_type")
+        # Every split the default names is a field of the scene's Newton system, and back.
+        named = {w.split("_")[1] for w in options.split() if w.startswith("-fieldsplit_")}
+        assert named == (set(fields) if len(fields) > 1 else set())
+
+
+def run_cli(capsys, tmp_path, *argv: str) -> tuple[int, list[str]]:
+    code = main([*argv, "--results", str(tmp_path / "results")])
+    return code, capsys.readouterr().err.strip().splitlines()
+
+
+@pytest.mark.parametrize("options,words", [
+    ("-pc_type nonsense", ["PETSc rejected run.petsc_options", "nonsense"]),
+    ("-ksp_type gmres -ksp_typo 3", ["PETSc rejected run.petsc_options", "-ksp_typo", "never used"]),
+    ("-pc_type fieldsplit -fieldsplit_groups u,chi", ["PETSc rejected run.petsc_options", "chi"]),
+])
+def test_a_bad_options_string_is_one_line_and_exit_code_input(capsys, tmp_path, options, words):
+    code, err = run_cli(capsys, tmp_path, "solve", str(CASES / "paper.toml"), "--n", "2",
+                        "--set", 'run.linear_solver="petsc"', "--set", f'run.petsc_options="{options}"')
+    assert code == ExitCode.INPUT
+    assert len(err) == 1 and err[0].startswith("error: ") and all(w in err[0] for w in words), err
+
+
+def test_an_options_string_that_is_not_options_is_refused_before_any_run(tmp_path):
+    with pytest.raises(SceneError, match="petsc_options"):
+        load_scene(CASES / "paper.toml", ['run.petsc_options="pc_type gamg"'])
+
+
+def test_the_plugin_is_built_once_per_source(tmp_path):
+    source = tmp_path / "petsc_solver.cpp"
+    source.write_text(petsc_plugin.SOURCE.read_text())
+    built = petsc_plugin.library(tmp_path / "build", source)
+    assert built.is_file() and petsc_plugin.library(tmp_path / "build", source) == built
+    source.write_text(source.read_text() + "\n// edited\n")
+    assert petsc_plugin.library(tmp_path / "build", source) != built
+
+
+def test_a_plugin_that_cannot_be_built_is_one_line_and_exit_code_environment(tmp_path, monkeypatch):
+    source = tmp_path / "petsc_solver.cpp"
+    source.write_text("#include <petscksp.h>\nint broken(\n")
+    with pytest.raises(EnvironmentFault, match=r"^cannot build the PETSc plugin petsc_solver-\w+\.so: .*error") as bad:
+        petsc_plugin.library(tmp_path / "build", source)
+    assert exit_code(bad.value) == ExitCode.ENVIRONMENT
+    assert not list((tmp_path / "build").iterdir())  # no half-written library left
+    # PETSc's headers missing (a broken or absent libpetsc-real3.18-dev).
+    source.write_text(petsc_plugin.SOURCE.read_text())
+    monkeypatch.setenv("PETSC_DIR", str(tmp_path / "no-petsc"))
+    with pytest.raises(EnvironmentFault, match="petscksp.h"):
+        petsc_plugin.library(tmp_path / "build", source)
+    monkeypatch.setenv("MPICXX", "no-such-mpicxx")
+    with pytest.raises(EnvironmentFault, match="needs a MPI C\\+\\+ compiler") as missing:
+        petsc_plugin.library(tmp_path / "build", source)
+    assert exit_code(missing.value) == ExitCode.ENVIRONMENT
