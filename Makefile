@@ -72,6 +72,14 @@ cost: $(STAMP) freefem
 
 bench: $(STAMP) freefem
 	$(PY) -m harness bench cases/paper.toml $(BENCH_FLAGS)
+	$(PY) -m harness solvers $(SOLVERS_FLAGS)
+
+# The solver table alone (issue 20): MUMPS_seq, UMFPACK64, PETSc field split + AMG, PETSc MUMPS
+# with and without BLR, on the paper scene at h = 1/64 and its 3D block at h = 1/16 (medians of
+# 3), into results/solvers/. Larger points: SOLVERS_FLAGS="--points paper:256,paper3d:32".
+.PHONY: solvers
+solvers: $(STAMP) freefem
+	$(PY) -m harness solvers $(SOLVERS_FLAGS)
 
 # Past one machine (issue 15): the paper scene solved on 1 and 2 MPI ranks, in 2D and 3D
 # (time, Krylov iterations, per-rank memory, agreement), and the stress suite in this

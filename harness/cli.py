@@ -26,6 +26,7 @@ STUDIES: dict[str, str] = {
     "verify": "manufactured-solution errors and the three-grid GCI",
     "cost": "what accuracy costs: the cost-accuracy frontier of a scene",
     "bench": "repeated timings (finest level, sweep, whole process), medians and spread",
+    "solvers": "the solver table: every linear solver on the same levels, medians",
     "scale": "past one machine: a solve on 1 and 2 MPI ranks, a study on one worker and on Dask",
 }
 

@@ -22,15 +22,28 @@ FREEFEM_INCLUDE = Path("/usr/include/freefem++")
 PETSC_DIR = Path("/usr/lib/petscdir/petsc-real")
 
 
-def default_options(dimension: int, fields: tuple[str, ...]) -> str:
-    """run.petsc_options when blank (docs/solvers.md, results/bench/solvers.csv): GMRES
-    preconditioned by one block Gauss-Seidel sweep over the fields, each block by one
-    BoomerAMG V-cycle; one field: BoomerAMG alone. Chosen by measurement; `dimension` is
-    the seam for a 3D choice of its own."""
+# MUMPS's LU through PETSc, kept as GMRES's preconditioner across Newton steps while it
+# serves (freefem/petsc_linear_solver.idp), as MUMPS_seq is; -mat_mumps_icntl_35 2 adds
+# block low-rank compression, -mat_mumps_icntl_22 1 puts the factors out of core.
+MUMPS_LU = "-ksp_type gmres -pc_type lu -pc_factor_mat_solver_type mumps"
+
+
+def field_split_options(fields: tuple[str, ...]) -> str:
+    """GMRES preconditioned by one block Gauss-Seidel sweep over the fields in order, each
+    block by one BoomerAMG V-cycle (one field: BoomerAMG alone)."""
     if len(fields) == 1:
         return "-ksp_type gmres -pc_type hypre"
     blocks = " ".join(f"-fieldsplit_{f}_ksp_type preonly -fieldsplit_{f}_pc_type hypre" for f in fields)
     return f"-ksp_type gmres -pc_type fieldsplit -pc_fieldsplit_type multiplicative {blocks}"
+
+
+def default_options(dimension: int, fields: tuple[str, ...]) -> str:
+    """run.petsc_options when blank, chosen by measurement (docs/solvers.md, results/solvers/):
+    MUMPS's LU in 2D and 3D. The field split with AMG needs 30-300 Krylov iterations a
+    Newton step once the electric contact conductance couples u_nu to phi with its gain
+    k_e/eps_e, and took 4x MUMPS's time at 3D h = 1/16. `dimension` and `fields` are the
+    seams for choices of their own."""
+    return MUMPS_LU
 
 
 def flags(source: Path, out: Path) -> list[str]:

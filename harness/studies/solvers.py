@@ -1,0 +1,136 @@
+"""The solver table (issue 20): every linear solver on the same levels, medians of repeats.
+
+    python -m harness solvers [--points paper:64,paper3d:16] [--repeats 3]
+        [--only mumps,umfpack,petsc-fieldsplit,petsc-mumps-blr] [--results results/solvers]
+
+Each point is a scene of cases/ and a level. The chain below the level is solved once per
+solver (and cached); the level itself is then rerun `--repeats` times from it, alone, as a
+study's last level runs. Per run, from run.json: the bulk assembly, the linear solver's
+set-up (a factorisation, or a preconditioner's set-up) and solve times, Newton's time, the
+peak memory (FreeFEM's VmHWM), Newton's iterations and the Krylov iterations of each step.
+A solver that fails at a point (UMFPACK's 32-bit indices, a Krylov method that stalls) is a
+row with its reason, not an error of the table.
+"""
+
+from __future__ import annotations
+
+import argparse
+import statistics
+import sys
+from pathlib import Path
+from typing import Any, Callable
+
+import pandas as pd
+
+from harness.arguments import name_list, positive_int
+from harness.engine import quiet, run_chain, runs_of, timed_meshes
+from harness.errors import RunError
+from harness.layout import REPO, Layout
+from harness.petsc_plugin import MUMPS_LU, field_split_options
+from harness.run import run_level
+from harness.scene import load_scene
+from harness.unknowns import Unknowns
+from harness.writers import write_csv, write_text
+
+CASES = REPO / "cases"
+DEFAULT_RESULTS = REPO / "results" / "solvers"
+# Each solver: run.linear_solver and, for PETSc, run.petsc_options of the scene's Newton fields.
+SOLVERS: dict[str, tuple[str, Callable[[tuple[str, ...]], str]]] = {
+    "mumps": ("mumps", lambda fields: ""),
+    "umfpack": ("umfpack64", lambda fields: ""),
+    "petsc-fieldsplit": ("petsc", field_split_options),
+    "petsc-mumps": ("petsc", lambda fields: MUMPS_LU),
+    "petsc-mumps-blr": ("petsc", lambda fields: MUMPS_LU + " -mat_mumps_icntl_35 2 -mat_mumps_cntl_7 1e-8"),
+}
+KEYS = ("wall_s", "bulk_assembly_s", "factorisation_s", "solve_s", "newton_s", "peak_rss_mb")
+
+
+def point(text: str) -> tuple[str, int]:
+    case, _, level = text.partition(":")
+    if not (CASES / f"{case}.toml").is_file() or not level.isdigit():
+        raise argparse.ArgumentTypeError(f"{text!r}: want CASE:N with cases/CASE.toml, e.g. paper3d:16")
+    return case, int(level)
+
+
+def solver_list(text: str) -> list[str]:
+    names = name_list(text)
+    unknown = [name for name in names if name not in SOLVERS]
+    if unknown:
+        raise argparse.ArgumentTypeError(f"unknown solver(s) {', '.join(unknown)}; known: {', '.join(SOLVERS)}")
+    return names
+
+
+def measure(case: str, n: int, name: str, repeats: int, layout: Layout,
+            say: Callable[[str], None]) -> dict[str, Any]:
+    solver, options_of = SOLVERS[name]
+    plain = load_scene(CASES / f"{case}.toml")
+    options = options_of(tuple(f.name for f in Unknowns(plain.effects, plain.dimension).newton))
+    overrides = [f'run.linear_solver="{solver}"', f'scene.name="solvers-{case}-{name}"', "run.timeout_s=3600"]
+    if options:
+        overrides.append(f'run.petsc_options="{options}"')
+    scene = load_scene(CASES / f"{case}.toml", overrides)
+    levels = [m for m in scene.levels if m < n] + [n]
+    row: dict[str, Any] = {"scene": case, "n": n, "solver": name, "linear_solver": solver,
+                           "options": scene.petsc_options if solver == "petsc" else ""}
+    try:
+        meshes, _ = timed_meshes(scene, levels, layout)
+        below = {m: p for m, p in meshes.items() if m < n}
+        runs = runs_of(run_chain(scene, below, layout, False, quiet)) if below else {}
+        warm = runs[max(below)].warm_start(meshes[max(below)]) if below else None
+        records = []
+        for i in range(repeats):
+            records.append(run_level(scene, meshes[n], n, layout, force=True, warm=warm).record)
+            say(f"{case} n={n} {name} #{i + 1}: {records[-1].wall_s:.2f} s")
+    except RunError as exc:
+        say(f"{case} n={n} {name}: failed: {exc}")
+        return {**row, "status": f"failed: {exc.failure.text}"}
+    last = records[-1]
+    linear = list(last.linear_iterations or [])[1:]
+    return {**row, "status": "ok", "repeats": repeats, "dofs": last.dofs,
+            **{k: statistics.median(float(getattr(r, k)) for r in records) for k in KEYS},
+            "newton_iterations": last.newton_iterations, "linear_iterations": " ".join(map(str, linear)),
+            "linear_per_newton_step": sum(linear) / max(len(linear), 1)}
+
+
+def markdown(table: pd.DataFrame) -> str:
+    lines = ["# Solver table (python -m harness solvers)", "",
+             "Medians of the repeats of each level, run alone from the chain below it. Times in seconds,",
+             "memory in MiB (FreeFEM's VmHWM). set-up: factorisation or preconditioner set-up.", "",
+             "| scene | n | dofs | solver | status | wall | bulk assembly | set-up | solve | Newton | peak MiB "
+             "| Newton its | Krylov its per step |",
+             "|---|---|---|---|---|---|---|---|---|---|---|---|---|"]
+    for _, r in table.iterrows():
+        if r["status"] != "ok":
+            lines.append(f"| {r['scene']} | {r['n']} | | {r['solver']} | {r['status']} | | | | | | | | |")
+            continue
+        lines.append(f"| {r['scene']} | {r['n']} | {int(r['dofs']):,} | {r['solver']} | ok | {r['wall_s']:.2f} "
+                     f"| {r['bulk_assembly_s']:.2f} | {r['factorisation_s']:.2f} | {r['solve_s']:.2f} "
+                     f"| {r['newton_s']:.2f} | {r['peak_rss_mb']:,.0f} | {int(r['newton_iterations'])} "
+                     f"| {r['linear_iterations']} |")
+    options = {r["solver"]: r["options"] for _, r in table.iterrows() if r["options"]}
+    lines += ["", "PETSc options (run.petsc_options):", ""]
+    lines += [f"- `{name}`: `{text}`" for name, text in options.items()]
+    return "\n".join(lines) + "\n"
+
+
+def add_arguments(parser: argparse.ArgumentParser) -> None:
+    parser.add_argument("--points", type=lambda s: [point(p) for p in s.split(",")],
+                        default=[("paper", 64), ("paper3d", 16)], help="CASE:N,... (default paper:64,paper3d:16)")
+    parser.add_argument("--repeats", type=positive_int, default=3)
+    parser.add_argument("--only", type=solver_list, default=list(SOLVERS),
+                        help=f"comma-separated solvers ({', '.join(SOLVERS)})")
+    parser.add_argument("--results", type=Path, default=DEFAULT_RESULTS)
+
+
+def run(args: argparse.Namespace) -> int:
+    def say(text: str) -> None:
+        print(text, file=sys.stderr, flush=True)
+
+    layout = Layout(results=args.results / "runs")
+    rows = [measure(case, n, name, args.repeats, layout, say) for case, n in args.points for name in args.only]
+    table = pd.DataFrame(rows)
+    write_csv(table, args.results / "solvers.csv")
+    write_text(markdown(table), args.results / "solvers.md")
+    print(markdown(table))
+    return 0
+
