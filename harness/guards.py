@@ -26,6 +26,11 @@ BASE_BYTES = 0.0
 # h = 1/32 (702,405 dofs) is estimated at 34 GB and refused on a 24 GiB machine.
 BYTES_PER_DOF_3D = 26e3
 DOFS_3D_MEASURED = 93_925
+# A Krylov method with an algebraic multigrid or field-split preconditioner
+# (run.linear_solver = "petsc" without a factorisation in run.petsc_options) stores no
+# factor: its memory grows like the unknowns. Measured (results/solvers/solvers.csv, VmHWM):
+# 3D h = 1/16 1,206 MiB for 93,925 dofs (13.5 kB), 2D h = 1/64 149 MiB at 1/32; rounded up.
+BYTES_PER_DOF_ITERATIVE = {2: 6.3e3, 3: 14e3}
 # MSH 2.2 text per mesh node: a node line (~60 characters) and two triangle lines (~30
 # each); in 3D, six tetrahedron lines (~40 each).
 MSH_BYTES_PER_NODE = {2: 150, 3: 320}
@@ -58,8 +63,14 @@ def mesh_nodes(width: float, height: float, n: int, element: str = "P1", depth: 
 
 
 def memory_estimate(width: float, height: float, n: int, effects: tuple[str, ...], element: str = "P1",
-                    depth: float | None = None) -> tuple[int, float]:
-    """(dofs, peak bytes) of one level's FreeFEM run; 3D when `depth` is given."""
+                    depth: float | None = None, factorises: bool = True) -> tuple[int, float]:
+    """(dofs, peak bytes) of one level's FreeFEM run; 3D when `depth` is given; `factorises`:
+    whether the linear solver factorises the Newton matrix (every solver but a PETSc Krylov
+    method with an iterative preconditioner)."""
+    if not factorises:
+        dimension = 2 if depth is None else 3
+        dofs = unknowns_per_node(effects, dimension) * mesh_nodes(width, height, n, element, depth)
+        return dofs, BYTES_PER_DOF_ITERATIVE[dimension] * dofs
     if depth is None:
         dofs = unknowns_per_node(effects) * mesh_nodes(width, height, n, element)
         return dofs, BASE_BYTES + BYTES_PER_DOF * dofs
@@ -88,14 +99,15 @@ def available_memory() -> float:
 
 
 def check_memory(width: float, height: float, levels: tuple[int, ...], effects: tuple[str, ...],
-                 element: str = "P1", available: float | None = None, depth: float | None = None) -> None:
+                 element: str = "P1", available: float | None = None, depth: float | None = None,
+                 factorises: bool = True) -> None:
     """Refuse, before meshing, a level set whose finest level does not fit in the memory left.
     The next finer-but-one level runs alongside it (the pipelined chain starts the finest
     while its coarser level runs; a parallel study runs two at once), so its peak counts too."""
     finest, *rest = sorted(set(levels), reverse=True)
-    dofs, need = memory_estimate(width, height, finest, effects, element, depth)
+    dofs, need = memory_estimate(width, height, finest, effects, element, depth, factorises)
     if rest:
-        need += memory_estimate(width, height, rest[0], effects, element, depth)[1]
+        need += memory_estimate(width, height, rest[0], effects, element, depth, factorises)[1]
     have = available_memory() if available is None else available
     if need > have:
         raise EnvironmentFault(

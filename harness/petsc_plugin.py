@@ -37,6 +37,13 @@ def field_split_options(fields: tuple[str, ...]) -> str:
     return f"-ksp_type gmres -pc_type fieldsplit -pc_fieldsplit_type multiplicative {blocks}"
 
 
+def factorising(options: str) -> bool:
+    """Whether PETSc's options factorise the matrix or a block of it (any -..._pc_type lu or
+    cholesky: for the memory guard, a block's factor counts as the whole's, erring high)."""
+    words = options.split()
+    return any(a.endswith("pc_type") and b in ("lu", "cholesky") for a, b in zip(words, words[1:]))
+
+
 def default_options(dimension: int, fields: tuple[str, ...]) -> str:
     """run.petsc_options when blank, chosen by measurement (docs/solvers.md, results/solvers/):
     MUMPS's LU in 2D and 3D. The field split with AMG needs 30-300 Krylov iterations a

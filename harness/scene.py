@@ -11,7 +11,7 @@ from pathlib import Path
 from typing import Any, Iterable
 
 from harness.errors import SceneError
-from harness.petsc_plugin import default_options
+from harness.petsc_plugin import default_options, factorising
 from harness.box import Box, parse_box
 from harness.schema import EFFECTS, REQUIRED, SCHEMA, SOLVER_SECTIONS, Key, effect_of, geometry_keys
 from harness.sections import sections_of
@@ -79,6 +79,11 @@ class Scene:
         """run.petsc_options, or the measured default of the scene's dimension when blank."""
         fields = tuple(f.name for f in Unknowns(self.effects, self.dimension).newton)
         return self.sections.run.petsc_options.strip() or default_options(self.dimension, fields)
+
+    @property
+    def factorises(self) -> bool:
+        """Whether the linear solver factorises the Newton matrix (memory: a factor's fill)."""
+        return self.linear_solver != "petsc" or factorising(self.petsc_options)
 
     @property
     def levels(self) -> tuple[int, ...]:

@@ -137,3 +137,13 @@ def test_a_plugin_that_cannot_be_built_is_one_line_and_exit_code_environment(tmp
     with pytest.raises(EnvironmentFault, match="needs a MPI C\\+\\+ compiler") as missing:
         petsc_plugin.library(tmp_path / "build", source)
     assert exit_code(missing.value) == ExitCode.ENVIRONMENT
+
+
+def test_the_contact_zone_subdomain_grown_over_the_whole_body_is_the_exact_solve(tmp_path):
+    """-pc_type asm gets the contact zone (Gamma_3's dofs grown by -contact_zone_layers
+    layers of the matrix graph) as its one subdomain: grown past the whole body at n = 4,
+    its LU is the full factorisation, so the first Newton step takes one Krylov iteration."""
+    direct = solve(tmp_path, "paper", 4, "mumps")
+    zone = solve(tmp_path, "paper", 4, "petsc", "-ksp_type gmres -pc_type asm -sub_pc_type lu -contact_zone_layers 100")
+    assert_same_fields(zone, direct)
+    assert zone.record.linear_iterations[1] == 1
