@@ -2,6 +2,7 @@
 
     python -m harness solvers [--points paper:64,paper3d:16] [--repeats 3]
         [--only mumps,umfpack,petsc-fieldsplit,petsc-mumps-blr] [--results results/solvers]
+        [--rank-point paper:64 --ranks 1,2,4,8]
 
 Each point is a scene of cases/ and a level. The chain below the level is solved once per
 solver (and cached); the level itself is then rerun `--repeats` times from it, alone, as a
@@ -10,11 +11,18 @@ set-up (a factorisation, or a preconditioner's set-up) and solve times, Newton's
 peak memory (FreeFEM's VmHWM), Newton's iterations and the Krylov iterations of each step.
 A solver that fails at a point (UMFPACK's 32-bit indices, a Krylov method that stalls) is a
 row with its reason, not an error of the table.
+
+With --ranks, the rank table (ranks.csv, ranks.md): the rank point solved from zero on each
+number of MPI ranks (run.ranks, one-level restricted additive Schwarz with a MUMPS_seq
+factorisation per subdomain, freefem/parallel_newton.idp), its Newton iterations and the
+GMRES iterations of each step. Ranks past the cores are oversubscribed: the iteration
+counts are what such a run measures, not its time.
 """
 
 from __future__ import annotations
 
 import argparse
+import os
 import statistics
 import sys
 from pathlib import Path
@@ -92,6 +100,37 @@ def measure(case: str, n: int, name: str, repeats: int, layout: Layout,
             "linear_per_newton_step": sum(linear) / max(len(linear), 1)}
 
 
+def rank_row(case: str, n: int, ranks: int, layout: Layout, say: Callable[[str], None]) -> dict[str, Any]:
+    overrides = [f'scene.name="ranks-{case}-{ranks}"', f"run.ranks={ranks}", 'scene.initial_guess="zero"',
+                 "run.timeout_s=3600"]
+    scene = load_scene(CASES / f"{case}.toml", overrides)
+    row: dict[str, Any] = {"scene": case, "n": n, "ranks": ranks}
+    try:
+        meshes, _ = timed_meshes(scene, [n], layout)
+        record = run_level(scene, meshes[n], n, layout, force=True).record
+    except RunError as exc:
+        return {**row, "status": f"failed: {exc.failure.text}"}
+    linear = list(record.linear_iterations or [])[1:]
+    say(f"{case} n={n} on {ranks} rank(s): Krylov iterations {linear}")
+    return {**row, "status": "ok", "dofs": record.dofs, "newton_iterations": record.newton_iterations,
+            "krylov_iterations": " ".join(map(str, linear)), "max_krylov_per_step": max(linear, default=0),
+            "wall_s": record.wall_s}
+
+
+def rank_markdown(table: pd.DataFrame) -> str:
+    lines = ["# Krylov iterations against MPI ranks (python -m harness solvers --ranks)", "",
+             "One-level RAS, MUMPS_seq per subdomain, from zero; 1 rank: the sequential scheme (a full "
+             "factorisation as GMRES's preconditioner). Oversubscribed past 2 ranks (times not comparable).", "",
+             "| scene | n | ranks | status | Newton its | Krylov its per step | max per step |",
+             "|---|---|---|---|---|---|---|"]
+    for _, r in table.iterrows():
+        its = r.get("krylov_iterations", "") if r["status"] == "ok" else ""
+        top = int(r["max_krylov_per_step"]) if r["status"] == "ok" else ""
+        newton = int(r["newton_iterations"]) if r["status"] == "ok" else ""
+        lines.append(f"| {r['scene']} | {r['n']} | {r['ranks']} | {r['status']} | {newton} | {its} | {top} |")
+    return "\n".join(lines) + "\n"
+
+
 def markdown(table: pd.DataFrame) -> str:
     lines = ["# Solver table (python -m harness solvers)", "",
              "Medians of the repeats of each level, run alone from the chain below it. Times in seconds,",
@@ -119,6 +158,9 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
     parser.add_argument("--repeats", type=positive_int, default=3)
     parser.add_argument("--only", type=solver_list, default=list(SOLVERS),
                         help=f"comma-separated solvers ({', '.join(SOLVERS)})")
+    parser.add_argument("--rank-point", type=point, default=("paper", 64), help="CASE:N of the rank table")
+    parser.add_argument("--ranks", type=lambda t: [positive_int(x) for x in t.split(",")], default=None,
+                        help="comma-separated rank counts: the rank table alone (e.g. 1,2,4,8)")
     parser.add_argument("--results", type=Path, default=DEFAULT_RESULTS)
 
 
@@ -127,6 +169,15 @@ def run(args: argparse.Namespace) -> int:
         print(text, file=sys.stderr, flush=True)
 
     layout = Layout(results=args.results / "runs")
+    if args.ranks:
+        # More ranks than cores: OpenMPI refuses them unless told (the counts are what is measured).
+        os.environ.setdefault("OMPI_MCA_rmaps_base_oversubscribe", "1")
+        case, n = args.rank_point
+        ranks = pd.DataFrame([rank_row(case, n, count, layout, say) for count in args.ranks])
+        write_csv(ranks, args.results / "ranks.csv")
+        write_text(rank_markdown(ranks), args.results / "ranks.md")
+        print(rank_markdown(ranks))
+        return 0
     rows = [measure(case, n, name, args.repeats, layout, say) for case, n in args.points for name in args.only]
     table = pd.DataFrame(rows)
     write_csv(table, args.results / "solvers.csv")
