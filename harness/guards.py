@@ -28,9 +28,11 @@ BYTES_PER_DOF_3D = 26e3
 DOFS_3D_MEASURED = 93_925
 # A Krylov method with an algebraic multigrid or field-split preconditioner
 # (run.linear_solver = "petsc" without a factorisation in run.petsc_options) stores no
-# factor: its memory grows like the unknowns. Measured (results/solvers/solvers.csv, VmHWM):
-# 3D h = 1/16 1,206 MiB for 93,925 dofs (13.5 kB), 2D h = 1/64 149 MiB at 1/32; rounded up.
-BYTES_PER_DOF_ITERATIVE = {2: 6.3e3, 3: 14e3}
+# factor: its memory grows like the unknowns. Measured (results/solvers/solvers.csv, VmHWM,
+# the field split with BoomerAMG): 3D h = 1/16 1,235 MiB for 93,925 dofs (13.8 kB); 2D
+# h = 1/64 425 MiB for 66,820 dofs (6.7 kB: the matrix is held three times, FreeFEM's K and
+# K + T and PETSc's copy, beside the AMG hierarchies). Rounded up.
+BYTES_PER_DOF_ITERATIVE = {2: 7e3, 3: 14.5e3}
 # MSH 2.2 text per mesh node: a node line (~60 characters) and two triangle lines (~30
 # each); in 3D, six tetrahedron lines (~40 each).
 MSH_BYTES_PER_NODE = {2: 150, 3: 320}
