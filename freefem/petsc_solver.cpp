@@ -144,23 +144,27 @@ PetscErrorCode dirichletRows(Mat a, std::vector<PetscInt> *rows) {
   return 0;
 }
 
+// `attach` applied to pc, or to each preconditioner of a composite one (-pc_type composite).
+PetscErrorCode eachLeaf(Context &c, PC pc, PetscErrorCode (*attach)(Context &, PC)) {
+  PetscBool composite = PETSC_FALSE;
+  PetscCall(PetscObjectTypeCompare((PetscObject)pc, PCCOMPOSITE, &composite));
+  if (!composite) return attach(c, pc);
+  PetscInt count;
+  PetscCall(PCCompositeGetNumberPC(pc, &count));
+  for (PetscInt i = 0; i < count; ++i) {
+    PC sub;
+    PetscCall(PCCompositeGetPC(pc, i, &sub));
+    PetscCall(eachLeaf(c, sub, attach));
+  }
+  return 0;
+}
+
 // The fields as index sets on the preconditioner (fieldsplit only; other PCs ignore them).
 // By default each field is a split of its own, in the Newton vector's order. The plugin's
 // option -fieldsplit_groups gives the splits and their order instead: "theta,u+phi" is two
 // splits, theta first, then u and phi together, named "uphi" (-fieldsplit_uphi_pc_type ...).
 PetscErrorCode attachFields(Context &c, PC pc) {
-  PetscBool split = PETSC_FALSE, composite = PETSC_FALSE, given = PETSC_FALSE;
-  PetscCall(PetscObjectTypeCompare((PetscObject)pc, PCCOMPOSITE, &composite));
-  if (composite) {
-    PetscInt count;
-    PetscCall(PCCompositeGetNumberPC(pc, &count));
-    for (PetscInt i = 0; i < count; ++i) {
-      PC sub;
-      PetscCall(PCCompositeGetPC(pc, i, &sub));
-      PetscCall(attachFields(c, sub));
-    }
-    return 0;
-  }
+  PetscBool split = PETSC_FALSE, given = PETSC_FALSE;
   PetscCall(PetscObjectTypeCompare((PetscObject)pc, PCFIELDSPLIT, &split));
   char spec[256] = "";
   PetscCall(PetscOptionsGetString(nullptr, c.prefix.c_str(), "-fieldsplit_groups", spec, sizeof(spec), &given));
@@ -234,18 +238,7 @@ PetscErrorCode contactZone(Mat a, const std::vector<PetscInt> &seed, PetscInt la
 // Additive Schwarz sub-preconditioners (-pc_type asm, or one of a composite's) get the contact
 // zone as their one subdomain: a direct solve there corrects what a field split cannot.
 PetscErrorCode attachZone(Context &c, PC pc) {
-  PetscBool composite = PETSC_FALSE, additive = PETSC_FALSE;
-  PetscCall(PetscObjectTypeCompare((PetscObject)pc, PCCOMPOSITE, &composite));
-  if (composite) {
-    PetscInt count;
-    PetscCall(PCCompositeGetNumberPC(pc, &count));
-    for (PetscInt i = 0; i < count; ++i) {
-      PC sub;
-      PetscCall(PCCompositeGetPC(pc, i, &sub));
-      PetscCall(attachZone(c, sub));
-    }
-    return 0;
-  }
+  PetscBool additive = PETSC_FALSE;
   PetscCall(PetscObjectTypeCompare((PetscObject)pc, PCASM, &additive));
   if (!additive) return 0;
   if (!c.zone) {
@@ -321,7 +314,7 @@ long create(string *const &options, string *const &names, KN<long> *const &sizes
   TRY(KSPSetFromOptions(c->ksp), "options \"" + *options + "\"");
   PC pc;
   TRY(KSPGetPC(c->ksp, &pc), "fields");
-  TRY(attachFields(*c, pc), "fields");
+  TRY(eachLeaf(*c, pc, attachFields), "fields");
   contexts.push_back(c);
   return (long)contexts.size() - 1;
 }
@@ -376,7 +369,7 @@ long solve(long const &id, Matrice_Creuse<double> *const &A, KN<double> *const &
   if (!c->zone) {
     PC pc;
     TRY(KSPGetPC(c->ksp, &pc), "contact zone");
-    TRY(attachZone(*c, pc), "contact zone");
+    TRY(eachLeaf(*c, pc, attachZone), "contact zone");
   }
   TRY(KSPSetReusePreconditioner(c->ksp, rebuild ? PETSC_FALSE : PETSC_TRUE), "reuse");
   TRY(KSPSetTolerances(c->ksp, rtol, 0.0, PETSC_DEFAULT, PETSC_DEFAULT), "tolerances");
