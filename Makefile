@@ -77,11 +77,12 @@ bench: $(STAMP) freefem
 # The solver table alone (issue 20): MUMPS_seq, UMFPACK64, PETSc field split + AMG, PETSc MUMPS
 # with and without BLR, on the paper scene at h = 1/64 and its 3D block at h = 1/16 (medians of
 # 3), into results/solvers/. Larger points: SOLVERS_FLAGS="--points paper:256,paper3d:32".
-# Then the rank table: the paper scene at h = 1/64 on 1, 2, 4, 8 MPI ranks (GMRES iterations
+# Then the direct solvers at 2D h = 1/256 (results/solvers/h256/), and the rank table: the paper scene at h = 1/64 on 1, 2, 4, 8 MPI ranks (GMRES iterations
 # of one-level Schwarz; oversubscribed past the cores), results/solvers/ranks.csv.
 .PHONY: solvers
 solvers: $(STAMP) freefem
 	$(PY) -m harness solvers $(SOLVERS_FLAGS)
+	$(PY) -m harness solvers --points paper:256 --only mumps,petsc-mumps,petsc-mumps-blr --results results/solvers/h256
 	$(PY) -m harness solvers --ranks 1,2,4,8
 
 # Past one machine (issue 15): the paper scene solved on 1 and 2 MPI ranks, in 2D and 3D
