@@ -24,6 +24,7 @@
 // script can exit with a code of the project's contract (freefem/contract.idp).
 #include <petscksp.h>
 #include <chrono>
+#include <algorithm>
 #include <cctype>
 #include <cmath>
 #include <cstring>
@@ -67,6 +68,7 @@ struct Context {
   KSP ksp = nullptr;
   Mat op = nullptr;        // the operator of the last solve
   Mat pre = nullptr;       // the matrix the preconditioner was built from
+  Mat baseU = nullptr;     // solveSum: K in the pattern of K + T
   std::string prefix;      // of this context's options in PETSc's database
   std::vector<std::string> names;
   std::vector<IS> fields;
@@ -333,17 +335,82 @@ PetscErrorCode unusedOptions(const Context &c, std::string *unused) {
   return 0;
 }
 
+// K's pattern extended by T's (values K's), built once per T pattern; the operator of each
+// step is a copy of it plus T. FreeFEM then never forms K + T, and K is copied once.
+PetscErrorCode sumPattern(Context &c, Matrice_Creuse<double> *K, Matrice_Creuse<double> *T) {
+  MatriceMorse<double> *k = K->A ? dynamic_cast<MatriceMorse<double> *>(&*K->A) : nullptr;
+  MatriceMorse<double> *t = T->A ? dynamic_cast<MatriceMorse<double> *>(&*T->A) : nullptr;
+  if (!k || !t || k->half || t->half || k->n != t->n || k->m != t->m) {
+    lastMessage = "K and T must be full sparse matrices of one size";
+    return PETSC_ERR_ARG_WRONG;
+  }
+  k->CSR();
+  t->CSR();
+  // Row by row, the union of the two sorted column lists, with K's values (0 where only T has one).
+  std::vector<PetscInt> rows(1, 0), cols;
+  std::vector<PetscScalar> values;
+  for (int i = 0; i < k->n; ++i) {
+    int a = k->p[i], ae = k->p[i + 1], b = t->p[i], be = t->p[i + 1];
+    while (a < ae || b < be) {
+      if (b >= be || (a < ae && k->j[a] < t->j[b])) { cols.push_back(k->j[a]); values.push_back(k->aij[a]); ++a; }
+      else if (a >= ae || t->j[b] < k->j[a]) { cols.push_back(t->j[b]); values.push_back(0.0); ++b; }
+      else { cols.push_back(k->j[a]); values.push_back(k->aij[a]); ++a; ++b; }
+    }
+    rows.push_back((PetscInt)cols.size());
+  }
+  PetscCall(MatDestroy(&c.baseU));
+  PetscCall(MatCreate(PETSC_COMM_SELF, &c.baseU));
+  PetscCall(MatSetSizes(c.baseU, k->n, k->n, k->n, k->n));
+  PetscCall(MatSetType(c.baseU, MATSEQAIJ));
+  PetscCall(MatSeqAIJSetPreallocationCSR(c.baseU, rows.data(), cols.data(), values.data()));
+  PetscCall(dirichletRows(c.baseU, &c.dirichlet));
+  PetscCall(MatDestroy(&c.op));
+  return MatDuplicate(c.baseU, MAT_DO_NOT_COPY_VALUES, &c.op);
+}
+
+// Whether every entry of t has a place in a's pattern.
+PetscErrorCode within(Mat t, Mat a, bool *inside) {
+  PetscInt n;
+  PetscCall(MatGetSize(t, &n, nullptr));
+  *inside = true;
+  for (PetscInt i = 0; i < n && *inside; ++i) {
+    PetscInt nt, na;
+    const PetscInt *ct, *ca;
+    PetscCall(MatGetRow(t, i, &nt, &ct, nullptr));
+    if (nt) {
+      PetscCall(MatGetRow(a, i, &na, &ca, nullptr));
+      for (PetscInt k = 0; k < nt && *inside; ++k) *inside = std::binary_search(ca, ca + na, ct[k]);
+      PetscCall(MatRestoreRow(a, i, &na, &ca, nullptr));
+    }
+    PetscCall(MatRestoreRow(t, i, &nt, &ct, nullptr));
+  }
+  return 0;
+}
+
+// The operator K + T with Dirichlet rows and columns as identity ones.
+PetscErrorCode sumOperator(Context &c, Matrice_Creuse<double> *K, Matrice_Creuse<double> *T) {
+  Mat t;
+  PetscCall(toPetsc(T, &t));
+  bool inside = false;
+  if (c.baseU) PetscCall(within(t, c.baseU, &inside));
+  if (!inside) PetscCall(sumPattern(c, K, T));
+  PetscCall(MatCopy(c.baseU, c.op, SAME_NONZERO_PATTERN));
+  PetscCall(MatAXPY(c.op, 1.0, t, SUBSET_NONZERO_PATTERN));
+  PetscCall(MatDestroy(&t));
+  return MatZeroRowsColumns(c.op, (PetscInt)c.dirichlet.size(), c.dirichlet.data(), 1.0, nullptr, nullptr);
+}
+
+long krylov(Context *c, KN<double> *b, KN<double> *x, double rtol, long reuse);
+
 // x = A^-1 b to ||b - A x|| <= rtol ||b||, from x = 0.
+// reuse: 0 a new operator A and a preconditioner built from it; 1 the operator A with the
+// preconditioner of an earlier matrix (a Newton tangent a few contact nodes away);
+// 2 the last operator and preconditioner again (A is not read: no copy).
 long solve(long const &id, Matrice_Creuse<double> *const &A, KN<double> *const &b, KN<double> *const &x,
            double const &rtol, long const &reuse) {
   Context *c = context(id);
   if (!c) return fail(PETSC_ERR_ARG_OUTOFRANGE, "solve");
-  // reuse: 0 a new operator A and a preconditioner built from it; 1 the operator A with the
-  // preconditioner of an earlier matrix (a Newton tangent a few contact nodes away);
-  // 2 the last operator and preconditioner again (A is not read: no copy).
-  bool keepOperator = reuse >= 2 && c->op;
-  bool rebuild = !reuse || !c->pre;
-  if (!keepOperator) {
+  if (reuse < 2 || !c->op) {
     Mat next;
     TRY(toPetsc(A, &next), "matrix");
     TRY(dirichletRows(next, &c->dirichlet), "Dirichlet rows");
@@ -352,6 +419,21 @@ long solve(long const &id, Matrice_Creuse<double> *const &A, KN<double> *const &
     TRY(MatDestroy(&c->op), "matrix");
     c->op = next;
   }
+  return krylov(c, b, x, rtol, reuse);
+}
+
+// The same with the operator K + T, K the same matrix at every call (the Newton method's
+// bulk matrix) and T its low-rank change (the contact tangent).
+long solveSum(long const &id, Matrice_Creuse<double> *const &K, Matrice_Creuse<double> *const &T,
+              KN<double> *const &b, KN<double> *const &x, double const &rtol, long const &reuse) {
+  Context *c = context(id);
+  if (!c) return fail(PETSC_ERR_ARG_OUTOFRANGE, "solve");
+  if (reuse < 2 || !c->op) TRY(sumOperator(*c, K, T), "matrix K + T");
+  return krylov(c, b, x, rtol, reuse);
+}
+
+long krylov(Context *c, KN<double> *b, KN<double> *x, double rtol, long reuse) {
+  bool rebuild = !reuse || !c->pre;
   PetscInt n;
   TRY(MatGetSize(c->op, &n, nullptr), "matrix");
   if (n != c->size || b->N() != n || x->N() != n) {
@@ -446,6 +528,7 @@ long destroy(long const &id) {
   KSPDestroy(&c->ksp);
   MatDestroy(&c->op);
   MatDestroy(&c->pre);
+  MatDestroy(&c->baseU);
   for (IS &is : c->fields) ISDestroy(&is);
   MatNullSpaceDestroy(&c->rigid);
   ISDestroy(&c->zone);
@@ -468,6 +551,9 @@ static void init() {
              new OneOperator6_<long, string *, string *, KN<long> *, KN<long> *, KN<double> *, KN<double> *>(create));
   Global.Add("petscSolve", "(",
              new OneOperator6_<long, long, Matrice_Creuse<double> *, KN<double> *, KN<double> *, double, long>(solve));
+  Global.Add("petscSolveSum", "(",
+             new OneOperator7_<long, long, Matrice_Creuse<double> *, Matrice_Creuse<double> *, KN<double> *,
+                                KN<double> *, double, long>(solveSum));
   Global.Add("petscStats", "(", new OneOperator2_<long, long, KN<double> *>(stats));
   Global.Add("petscDestroy", "(", new OneOperator1_<long, long>(destroy));
   ff_atend(finish);
