@@ -190,6 +190,10 @@ SCHEMA: dict[str, dict[str, Key]] = {
         # -pc_type fieldsplit ..."); blank: the measured default of the scene's dimension
         # (harness/petsc_plugin.py DEFAULT_OPTIONS, docs/solvers.md).
         "petsc_options": Key(str, "", petsc_option_words),
+        # With a PETSc geometric multigrid (-pc_type mg in run.petsc_options): how many coarser
+        # meshes of the scene's nested family, each halving n, become its levels (fewer where
+        # n runs out: the coarsest is n = 2). The harness meshes them (harness/mesh.py).
+        "multigrid_levels": Key(int, 4, nonnegative),
         # MPI ranks of one solve (freefem/parallel.idp, harness/launcher.py); 1: the sequential scheme.
         "ranks": Key(int, 1, positive),
         # How ranks are started; {ranks} is replaced. On a SLURM cluster: "srun -n {ranks} FreeFem++-mpi".
