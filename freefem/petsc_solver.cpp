@@ -337,6 +337,7 @@ PetscErrorCode attachLevels(Context &c, PC pc) {
     PetscCall(MatGetSize(c.nodal[k], nullptr, &nodes));
   }
   PetscCall(PCMGSetGalerkin(pc, PC_MG_GALERKIN_BOTH));
+  std::cout << "multigrid: " << levels << " levels" << std::endl;
   PetscCall(PCSetFromOptions(pc));
   c.oneLevel = levels == 1;
   if (levels > 1) return 0;

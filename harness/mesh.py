@@ -37,20 +37,20 @@ def mesh_path(directory: Path, n: int) -> Path:
     return directory / f"mesh_n{n}.msh"
 
 
-def coarser_levels(n: int, count: int) -> list[int]:
-    """Up to `count` levels below n, each half the one above, down to n = 2 at the coarsest:
-    the nested family a geometric multigrid at level n coarsens through."""
+def coarser_levels(n: int, count: int, coarsest: int = 2) -> list[int]:
+    """Up to `count` levels below n, each half the one above, none below `coarsest`: the
+    nested family a geometric multigrid at level n coarsens through."""
     levels: list[int] = []
-    while len(levels) < count and n % 2 == 0 and n // 2 >= 2:
+    while len(levels) < count and n % 2 == 0 and n // 2 >= max(coarsest, 1):
         n //= 2
         levels.append(n)
     return levels
 
 
-def coarser_meshes(geometry: Geometry | Box, n: int, count: int, directory: Path) -> list[Path]:
-    """The meshes of `coarser_levels(n, count)`, finest first, made where missing."""
+def coarser_meshes(geometry: Geometry | Box, n: int, count: int, coarsest: int, directory: Path) -> list[Path]:
+    """The meshes of `coarser_levels(n, count, coarsest)`, finest first, made where missing."""
     with GMSH:
-        return [build_mesh(geometry, m, directory).path for m in coarser_levels(n, count)]
+        return [build_mesh(geometry, m, directory).path for m in coarser_levels(n, count, coarsest)]
 
 
 def build_mesh(geometry: Geometry | Box, n: int, directory: Path) -> MeshSummary:

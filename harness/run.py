@@ -256,7 +256,8 @@ def solver_inputs(
     options += freefem.scene_options(scene.solver_parameters(), guess)
     if petsc:
         options += ["-run.petsc_options", scene.petsc_options]
-        for coarse in coarser_meshes(scene.geometry, n, scene.multigrid_levels, mesh.resolve().parent):
+        for coarse in coarser_meshes(scene.geometry, n, scene.multigrid_levels, scene.sections.run.multigrid_coarsest,
+                                     mesh.resolve().parent):
             options += ["-mg.mesh", str(coarse)]
     if start:
         state = str(start.state) if str(start.state) == "-" else str(start.state.resolve())

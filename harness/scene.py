@@ -124,7 +124,8 @@ class Scene:
             "element": self.element,
             "linear_solver": self.linear_solver,
             **({"petsc_options": self.petsc_options} if self.linear_solver == "petsc" else {}),
-            **({"multigrid_levels": self.multigrid_levels} if self.multigrid_levels else {}),
+            **({"multigrid": [self.multigrid_levels, self.sections.run.multigrid_coarsest]}
+               if self.multigrid_levels else {}),
             "effects": list(self.effects),
             "geometry": copy.deepcopy(self.table["geometry"]),
             **self.solver_parameters(),

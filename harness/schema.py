@@ -191,9 +191,13 @@ SCHEMA: dict[str, dict[str, Key]] = {
         # (harness/petsc_plugin.py DEFAULT_OPTIONS, docs/solvers.md).
         "petsc_options": Key(str, "", petsc_option_words),
         # With a PETSc geometric multigrid (-pc_type mg in run.petsc_options): how many coarser
-        # meshes of the scene's nested family, each halving n, become its levels (fewer where
-        # n runs out: the coarsest is n = 2). The harness meshes them (harness/mesh.py).
+        # meshes of the scene's nested family, each halving n, become its levels, the coarsest
+        # no coarser than n = multigrid_coarsest (a level with none is solved by the coarse
+        # solver alone). Below n = 8 a coarse mesh misses where Gamma_3 opens: the paper's
+        # scene at n = 4 over n = 2 took 88-131 Krylov iterations a Newton step, against 5-13
+        # from n = 16 to 128 (docs/solvers.md). The harness meshes them (harness/mesh.py).
         "multigrid_levels": Key(int, 4, nonnegative),
+        "multigrid_coarsest": Key(int, 8, positive),
         # MPI ranks of one solve (freefem/parallel.idp, harness/launcher.py); 1: the sequential scheme.
         "ranks": Key(int, 1, positive),
         # How ranks are started; {ranks} is replaced. On a SLURM cluster: "srun -n {ranks} FreeFem++-mpi".
