@@ -102,5 +102,6 @@ def prepared_scene(args: argparse.Namespace, levels: tuple[int, ...] | None = No
         check_nested(levels)
     if not args.ignore_memory:
         check_memory(scene.geometry.width, scene.geometry.height, levels, scene.effects, scene.element,
-                     depth=geometry_depth(scene.geometry), factorises=scene.factorises)
+                     depth=geometry_depth(scene.geometry), factorises=scene.factorises,
+                     multigrid=scene.multigrid_levels > 0)
     return scene, levels
