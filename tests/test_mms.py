@@ -263,14 +263,14 @@ MUTATIONS = {
                                "macro DT3(th) (p3 * Theta * (th))"),
     "shear piezoelectric sign (D1)": ("bulk", "constitutive.idp", "macro DU1(u) (e15 * eps5(u))",
                                       "macro DU1(u) (-e15 * eps5(u))"),
-    "penalty factor": ("contact", "forms.idp", "cnu * pos(gapS(u)) * vnu(v)",
-                       "0.5 * cnu * pos(gapS(u)) * vnu(v)"),
-    "Tresca bound": ("contact", "forms.idp", "projScale(wNorm(u), slipBound) * cnu * U * tauDot(u, v)",
-                     "projScale(wNorm(u), 0.5 * slipBound) * cnu * U * tauDot(u, v)"),
-    "electric conductance sign": ("contact", "forms.idp", "(elecFlux(gapS(u), ph) * vp",
-                                  "(-elecFlux(gapS(u), ph) * vp"),
-    "thermal conductance factor": ("contact", "forms.idp", "(heatFlux(gapS(u), th) * vt",
-                                   "(0.5 * heatFlux(gapS(u), th) * vt"),
+    "penalty factor": ("contact", "forms.idp", "(normalPressure(gapS(u)) * vnu(v)",
+                       "(0.5 * normalPressure(gapS(u)) * vnu(v)"),
+    "Tresca bound": ("contact", "forms.idp", "projScale(wNorm(u), frictionBound(u)) * cnu * U * tauDot(u, v)",
+                     "projScale(wNorm(u), 0.5 * frictionBound(u)) * cnu * U * tauDot(u, v)"),
+    "electric conductance sign": ("contact", "forms.idp", "(electricFlux(gapS(u), Phi * ph - phif) * vp",
+                                  "(-electricFlux(gapS(u), Phi * ph - phif) * vp"),
+    "thermal conductance factor": ("contact", "forms.idp", "(thermalFlux(gapS(u), Theta * th - thetaf) * vt",
+                                   "(0.5 * thermalFlux(gapS(u), Theta * th - thetaf) * vt"),
 }
 
 
