@@ -99,6 +99,8 @@ EFFECTS: dict[str, tuple[str, ...]] = {
 DATA_EFFECT: dict[tuple[str, str | None], str] = {
     ("contact", None): "contact",
     ("contact", "S"): "friction",
+    ("contact", "friction_law"): "friction",
+    ("contact", "mu"): "friction",
     ("electric_contact", None): "electric_contact",
     ("thermal_contact", None): "thermal_contact",
     ("loads", "surface_charge"): "piezoelectric",
@@ -164,6 +166,10 @@ SCHEMA: dict[str, dict[str, Key]] = {
         "c_nu": Key(float, check=positive),
         "gap": Key(float),
         "S": Key(float, check=nonnegative),
+        # The slip bound (freefem/contact.idp, docs/laws.md): tresca, R = S; coulomb,
+        # R = mu c_nu (u_nu - g)_+, mu times the normal pressure (S is then not used).
+        "friction_law": Key(str, "tresca", one_of("tresca", "coulomb")),
+        "mu": Key(float, 0.0, nonnegative),
     },
     "electric_contact": {
         "k_e": Key(float, check=nonnegative),
