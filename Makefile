@@ -18,7 +18,7 @@ convergence: $(STAMP) freefem
 scenes: $(STAMP) freefem
 	$(PY) -m harness scenes $(CLUSTER_FLAGS)
 
-test: $(STAMP) freefem
+test: $(STAMP) freefem getfem
 	$(PY) -m pytest -q
 
 # The fast study the slope-regression test compares with (tests/test_regression.py).
@@ -28,6 +28,19 @@ baseline: $(STAMP) freefem
 
 freefem:
 	@bash scripts/install-freefem.sh
+
+# GetFEM 5.4 for Debian's Python (python3-getfem): the cross-check's second code only.
+.PHONY: getfem crosscheck
+getfem:
+	@bash scripts/install-getfem.sh
+
+# FreeFEM against the GetFEM peer (issue 21, docs/crosscheck.md): the paper's scene in 2D and
+# 3D on both branches, then every scene of cases/ and cases/hard/ at its coarse levels (up
+# to n = 8 in 2D, 4 in 3D), field by field, into results/crosscheck/ (crosscheck.csv, .md,
+# .png). Exit 6 when a field differs by more than 1e-8 relative, naming field and level.
+crosscheck: $(STAMP) freefem getfem
+	$(PY) -m harness crosscheck cases/paper.toml cases/paper3d.toml --branches zero,pressed --out results/crosscheck/paper
+	$(PY) -m harness crosscheck cases/*.toml cases/hard/*.toml
 
 $(STAMP): pyproject.toml
 	bash scripts/make-venv.sh $(PYTHON) $(VENV)

@@ -84,8 +84,9 @@ def newton(md, unknowns: Unknowns, start: dict[str, np.ndarray] | None, settings
     (newton.rtol): its largest increment relative to the field's largest value (floor 1e-14,
     round-off), or after two full steps in a row with ratio q < 1/2 of the increments,
     the contraction estimate q/(1 - q) times the increment (Deuflhard 2004, sec. 2.1).
-    From zero, when Newton makes no progress (5 steps in a row pass no damping trial, or
-    half of max_iterations pass), restart once from the pressed state."""
+    From zero, when Newton makes no progress (the contact state returns to an earlier one,
+    5 steps in a row pass no damping trial, or a step is still damped after half of
+    max_iterations), restart once from the pressed state."""
     clock = time.perf_counter()
     rtol, max_it = float(settings["rtol"]), int(settings["max_iterations"])
     result = NewtonResult(increments={f: [] for f in unknowns.fields})
@@ -95,6 +96,7 @@ def newton(md, unknowns: Unknowns, start: dict[str, np.ndarray] | None, settings
     x[constrained] = 0.0
     unknowns.set(x)
     state, stalled, history, full = contact_state(), 0, [], []
+    seen = [state.tobytes()]
     restartable = start is None
     for it in range(1, max_it + 1):
         r, jac = system(md, free, result)
@@ -125,13 +127,16 @@ def newton(md, unknowns: Unknowns, start: dict[str, np.ndarray] | None, settings
         if full[-1] and all(error(history, full, f) <= rtol for f in ranges):
             result.converged, result.reason = True, "converged"
             break
-        if restartable and (stalled >= STALLED or it >= max_it // 2):
+        seen.append(state.tobytes())
+        cycling = changes > 0 and seen[-1] in seen[:-2]  # back to an earlier contact state
+        if restartable and (cycling or stalled >= STALLED or (it >= max_it // 2 and alpha < 1.0)):
             restartable = False
             result.restarted_at = it
             x = place(pressed(), ranges, md.nbdof())
             x[constrained] = 0.0
             unknowns.set(x)
             state, stalled, history, full = contact_state(), 0, [], []
+            seen = [state.tobytes()]
     else:
         result.reason = "max_iterations"
     result.newton_s = time.perf_counter() - clock

@@ -69,11 +69,13 @@ def problem_of(spec: dict) -> Problem:
     dimension = int(spec["dimension"])
     if dimension not in (2, 3):
         raise InputError(f"dimension {dimension} (2 or 3)")
-    data = {k: dict(spec[k]) for k in ("loads", "contact", "electric_contact", "thermal_contact")}
+    # A section of an effect that is off may be absent; its values then enter no term.
+    data = {k: dict(spec.get(k) or {}) for k in ("loads", "contact", "electric_contact", "thermal_contact")}
     bound = data["electric_contact"].get("L", math.inf)
     data["electric_contact"]["L"] = 1e300 if bound is None or math.isinf(float(bound)) else float(bound)
     return Problem(dimension, frozenset(spec["effects"]), reduced(spec["material"], dimension), data,
-                   scales(spec["material"], data["electric_contact"]["phi_f"], data["thermal_contact"]["theta_f"]))
+                   scales(spec["material"], data["electric_contact"].get("phi_f", 0.0),
+                          data["thermal_contact"].get("theta_f", 0.0)))
 
 
 def solve(spec: dict) -> dict:
@@ -99,11 +101,13 @@ def solve(spec: dict) -> dict:
     unknowns = Unknowns(md, fields, dirichlet_dofs(mfu, mfs, fields, labels, p.dimension))
     setup = time.perf_counter() - clock
     start = spec["start"]
-    if start not in ("zero", "pressed"):
-        raise InputError(f"start {start!r} (zero | pressed)")
-    pressed = lambda: pressed_state(md, mim, mfu, mfs, fields, labels, p)  # noqa: E731
-    result: NewtonResult = newton(md, unknowns, pressed() if start == "pressed" else None,
-                                  spec["newton"], contact_state(md, mim, mfu, mfs, p, labels), pressed)
+    if start not in ("zero", "pressed", "given"):
+        raise InputError(f"start {start!r} (zero | pressed | given)")
+    pressed = lambda: pressed_state(md, mim, mfu, mfs, fields, labels, p, spec["pressed_depth"])  # noqa: E731
+    first = {"zero": lambda: None, "pressed": pressed,
+             "given": lambda: given_state(spec["given"], mfu, mfs, fields, p)}[start]()
+    result: NewtonResult = newton(md, unknowns, first, spec["newton"], contact_state(md, mim, mfu, mfs, p, labels),
+                                  pressed)
     return output(md, mim, mfu, mfs, fields, p, labels, result, setup, time.perf_counter() - clock)
 
 
@@ -127,21 +131,45 @@ def dirichlet_dofs(mfu, mfs, fields: list[str], labels: dict[str, int], dimensio
     return out
 
 
-def pressed_state(md, mim, mfu, mfs, fields: list[str], labels: dict[str, int], p: Problem) -> dict[str, np.ndarray]:  # noqa: ANN001
-    """docs/model.md section 6: Gamma_3 pushed 2 max(eps_e, eps_c) into the foundation along
+def pressed_state(md, mim, mfu, mfs, fields: list[str], labels: dict[str, int], p: Problem,  # noqa: ANN001
+                  depth_m: float) -> dict[str, np.ndarray]:
+    """docs/model.md section 6: Gamma_3 pushed depth_m = 2 max(eps_e, eps_c) into the foundation along
     its mean outward normal, phi = phi_f and theta = 5 K on Gamma_3, each extended into the
     body as the harmonic function that is 1 on Gamma_3 and 0 on the field's Dirichlet part."""
     contact = labels["contact"]
     w_mech = harmonic(mim, mfs, contact, [labels["clamped"]])
     normal = np.asarray(gf.asm("generic", mim, 0, "Normal", contact, md), dtype=float)
     normal /= gf.asm("generic", mim, 0, "1", contact, md)
-    depth = 2.0 * max(p.data["electric_contact"]["eps_e"], p.data["thermal_contact"]["eps_c"])
+    depth = float(depth_m)
     state = {"u": (depth / p.scales.U * np.outer(w_mech, normal)).ravel()}
     if "phi" in fields:
-        state["phi"] = p.data["electric_contact"]["phi_f"] / p.scales.Phi * w_mech
+        state["phi"] = p.data["electric_contact"].get("phi_f", 0.0) / p.scales.Phi * w_mech
     if "theta" in fields:
         zero = [labels[r] for r in ("clamped", "loaded", "free") if r in labels]
         state["theta"] = 5.0 / p.scales.Theta * harmonic(mim, mfs, contact, zero)
+    return state
+
+
+def given_state(given: dict, mfu, mfs, fields: list[str], p: Problem) -> dict[str, np.ndarray]:  # noqa: ANN001
+    """A start from nodal fields in SI units (another code's solution, `given`: its "points"
+    and one array per field), matched to this mesh's nodes by their coordinates."""
+    points = np.array(given["points"], float)[:, :p.dimension]
+    extent = float(np.ptp(points, axis=0).max())
+    index = {tuple(np.round(x / extent * 1e6).astype(int)): i for i, x in enumerate(points)}
+
+    def order(nodes: np.ndarray) -> np.ndarray:
+        try:
+            return np.array([index[tuple(np.round(x / extent * 1e6).astype(int))] for x in nodes])
+        except KeyError:
+            raise InputError("the given start's points are not this mesh's nodes") from None
+
+    s = p.scales
+    scalar = order(np.asarray(mfs.basic_dof_nodes()).T)
+    vector = order(np.asarray(mfu.basic_dof_nodes()).T[::p.dimension])
+    state = {"u": (np.array(given["u"], float)[:, :p.dimension][vector] / s.U).ravel()}
+    for name, scale in (("phi", s.Phi), ("theta", s.Theta)):
+        if name in fields:
+            state[name] = np.array(given[name], float)[scalar] / scale
     return state
 
 
@@ -203,6 +231,7 @@ def output(md, mim, mfu, mfs, fields: list[str], p: Problem, labels: dict[str, i
         "converged": result.converged, "reason": result.reason, "newton_iterations": result.iterations,
         "restarted_at": result.restarted_at, "increments": result.increments, "damping": result.damping,
         "contact_changes": result.changes, "dofs": int(md.nbdof()), "points": nodes.tolist(),
+        "u_points": np.asarray(mfu.basic_dof_nodes()).T[::p.dimension].tolist(),
         "u": (s.U * np.asarray(md.variable("u")).reshape(-1, p.dimension)).tolist(),
         "setup_s": setup_s, "assembly_s": result.assembly_s, "factorisation_s": result.factorisation_s,
         "solve_s": result.solve_s, "newton_s": result.newton_s, "total_s": total_s,

@@ -18,7 +18,7 @@ from typing import Any
 import numpy as np
 
 from harness.contract import ROLE_LABELS
-from harness.errors import EnvironmentFault, RunError, SceneError
+from harness.errors import PeerMissing, RunError, SceneError
 
 SYSTEM_PYTHON = "/usr/bin/python3"
 PACKAGE = "python3-getfem"
@@ -27,10 +27,6 @@ RUNNER = Path(__file__).resolve().parents[1] / "getfem" / "peer.py"
 MATERIAL_MACROS = {"materialC": "C", "materialE": "e", "materialBeta": "beta", "materialK": "k",
                    "materialM": "m", "materialP": "p", "materialAlpha": "alpha"}
 MACRO = re.compile(r"^\s*macro\s+(material\w+)\s+(.*?)//", re.MULTILINE | re.DOTALL)
-
-
-class PeerMissing(EnvironmentFault):
-    """GetFEM (the Debian package python3-getfem) is not installed."""
 
 
 @dataclass(frozen=True)
@@ -78,12 +74,14 @@ def finite(value: Any) -> Any:
 
 
 def problem(table: dict[str, dict[str, Any]], effects: tuple[str, ...], dimension: int, material: dict[str, Any],
-            mesh: Path, start: str) -> dict[str, Any]:
-    """The peer's input: everything one solve depends on."""
+            mesh: Path, start: str, pressed_depth: float = 2e-6) -> dict[str, Any]:
+    """The peer's input: everything one solve depends on. `table`: the data FreeFEM gets
+    (Scene.solver_parameters: sections of effects that are off left out); `pressed_depth`:
+    how far the pressed start pushes Gamma_3 in, 2 max(eps_e, eps_c) [m]."""
     sections = ("loads", "contact", "electric_contact", "thermal_contact", "newton")
     return {
         "mesh": str(mesh), "dimension": dimension, "labels": dict(ROLE_LABELS), "effects": list(effects),
-        "material": material, "start": start,
+        "material": material, "start": start, "pressed_depth": pressed_depth,
         **{s: {k: finite(v) for k, v in table.get(s, {}).items()} for s in sections},
     }
 
@@ -113,3 +111,13 @@ def run_peer(spec: dict[str, Any], work: Path, timeout_s: float) -> PeerRun:
         raise RunError(f"GetFEM peer did not converge: {record['reason']} after {record['newton_iterations']} "
                        f"Newton iterations ({work})")
     return PeerRun(record, wall, float(record["peak_rss_mb"]))
+
+
+def pressed_depth(table: dict[str, dict[str, Any]]) -> float:
+    """2 max(eps_e, eps_c) of the case, the depth of the pressed start (docs/model.md section 6)."""
+    def value(section: str, key: str) -> float:
+        # A case without the effect has no value: the start then uses the 1e-6 m that
+        # freefem/parameters.idp takes, so both codes start from the same state.
+        return float(table.get(section, {}).get(key, 1e-6))
+
+    return 2.0 * max(value("electric_contact", "eps_e"), value("thermal_contact", "eps_c"))
