@@ -42,6 +42,14 @@ crosscheck: $(STAMP) freefem getfem
 	$(PY) -m harness crosscheck cases/paper.toml cases/paper3d.toml --branches zero,pressed --out results/crosscheck/paper
 	$(PY) -m harness crosscheck cases/*.toml cases/hard/*.toml
 
+# The paper's Figs. 2-3 from both codes side by side with their difference (deformed mesh,
+# von Mises stress, phi, theta): the paper's scene at h = 1/64 and its 3D block at h = 1/8
+# (mid-plane y = 1/2), both branches, into results/paper/figures/ (~10 min on 2 cores).
+.PHONY: paper-figures
+paper-figures: $(STAMP) freefem getfem
+	$(PY) -m harness crosscheck cases/paper.toml --levels 64 --branches zero,pressed --figures results/paper/figures --out results/paper/figures/h64
+	$(PY) -m harness crosscheck cases/paper3d.toml --levels 8 --branches zero,pressed --figures results/paper/figures --out results/paper/figures/3d_h8
+
 $(STAMP): pyproject.toml
 	bash scripts/make-venv.sh $(PYTHON) $(VENV)
 

@@ -91,12 +91,9 @@ def integral_differences(record: RunRecord, peer: dict[str, Any]) -> dict[str, t
         # against the most the contact can carry, max |sigma_tau| times the closed measure.
         theirs = float(np.linalg.norm(peer["friction_force_vector"]))
         capacity = float((record.checks or {}).get("max_abs_sigma_tau", 0.0)) * float(record.active_measure or 0.0)
-        floor = ROUND_OFF * capacity
-        out["friction_force"] = (float(record.friction_force), theirs, relative(float(record.friction_force), theirs, floor))
+        out["friction_force"] = (float(record.friction_force), theirs, relative(float(record.friction_force), theirs, capacity))
     return out
 
-
-ROUND_OFF = 1e-12
 
 
 def relative(a: float, b: float, floor: float = 0.0) -> float:
