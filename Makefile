@@ -86,14 +86,19 @@ branches: $(STAMP) freefem
 # `make bench` repeats the timings that matter (finest level alone, the sweep, the CLI, and
 # `python -m harness solve CASE --n FINEST --force` as a whole process beside its own FreeFEM
 # run: `process`) five times, medians and min-max, into results/bench/ (bench.csv, bench.md); it waits
-# (up to 20 min) for a 1-minute load below 1.2 first.
+# (up to 20 min) for a 1-minute load below 1.2 first. Then FreeFEM beside the GetFEM peer
+# (docs/crosscheck.md): the paper's scene at h = 1/64 and its 3D block at h = 1/8, both from
+# zero, as whole processes, the two codes alternating, medians of 5 and their ratio per phase,
+# into results/bench/getfem/ (timing.md, timing.csv).
 .PHONY: cost bench
 cost: $(STAMP) freefem
 	$(PY) -m harness cost cases/paper.toml $(COST_FLAGS)
 
-bench: $(STAMP) freefem
+bench: $(STAMP) freefem getfem
 	$(PY) -m harness bench cases/paper.toml $(BENCH_FLAGS)
 	$(PY) -m harness solvers $(SOLVERS_FLAGS)
+	$(PY) -m harness crosscheck cases/paper.toml --levels 64 --repeat 5 --out results/bench/getfem/2d
+	$(PY) -m harness crosscheck cases/paper3d.toml --levels 8 --repeat 5 --out results/bench/getfem/3d
 
 # The solver table alone (issue 20): MUMPS_seq, UMFPACK64, PETSc field split + AMG, PETSc MUMPS
 # with and without BLR, on the paper scene at h = 1/64 and its 3D block at h = 1/16 (medians of

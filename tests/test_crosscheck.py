@@ -126,3 +126,16 @@ def test_two_branches_reached_from_the_same_start_are_told_apart_from_a_mistake(
     row = table.iloc[0]
     assert row["status"].startswith("branch: FreeFEM's solution solves GetFEM's equations")
     assert row["contact_force_getfem"] > 1e6 * row["contact_force_freefem"]  # pressed against barely touching
+
+
+def test_repeat_times_both_codes_as_whole_processes_with_medians_and_ratios(tmp_path):
+    code, _ = crosscheck(tmp_path, str(CASES / "paper.toml"), "--levels", "2", "--repeat", "2")
+    assert code == 0
+    timing = pd.read_csv(tmp_path / "out" / "timing.csv").iloc[0]
+    assert timing["repeats"] == 2 and timing["n"] == 2
+    for key in ("wall_s", "rss_mb", "assembly_s", "factorisation_s", "newton_s"):
+        for code_name in ("freefem", "getfem"):
+            column = f"{key}_{code_name}"
+            assert 0 < timing[f"{column}_min"] <= timing[column] <= timing[f"{column}_max"]
+        assert timing[f"ratio_{key}"] == pytest.approx(timing[f"{key}_freefem"] / timing[f"{key}_getfem"], rel=1e-5)
+    assert "| paper | zero | 2 |" in (tmp_path / "out" / "timing.md").read_text()

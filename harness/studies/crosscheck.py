@@ -13,7 +13,7 @@ from pathlib import Path
 
 import pandas as pd
 
-from harness.arguments import add_common, level_list, name_list
+from harness.arguments import add_common, level_list, name_list, positive_int
 from harness.crosscheck import TOLERANCE, differences, integral_differences
 from harness.engine import InlineMeshes, quiet, run_chain, runs_of
 from harness.errors import Disagreement, FieldsError, RunError, SceneError
@@ -36,6 +36,9 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
     parser.add_argument("--set", dest="overrides", action="append", default=[], metavar="KEY=VALUE",
                         help="override a case value, e.g. --set contact.S=4 (repeatable)")
     parser.add_argument("--out", type=Path, help="output folder (default: RESULTS/crosscheck)")
+    parser.add_argument("--repeat", type=positive_int, default=1,
+                        help="also time the finest level N more times per code, FreeFEM and GetFEM alternating, "
+                        "medians into timing.csv and timing.md")
     parser.add_argument("--figures", type=Path, help="also draw the paper's figures from both codes at the "
                         "finest level into this folder (docs/crosscheck.md)")
     add_common(parser)
@@ -48,10 +51,12 @@ def run(args: argparse.Namespace) -> int:
     layout = Layout(results=args.results / "crosscheck" / "runs", freefem=args.freefem)
     plans = [plan for case in args.cases for plan in plans_of(case, args.overrides, args.branches, args.levels)]
     require_getfem()
-    rows, failures = [], []
+    rows, failures, timed = [], [], []
     for scene, start, levels in plans:
         try:
             rows += compare(scene, start, levels, layout, args.force, args.figures)
+            if args.repeat > 1:
+                timed.append(timing(scene, start, max(levels), layout, args.repeat))
         except (RunError, FieldsError) as exc:  # recorded; the other scenes still run
             failures.append(f"{scene.name} ({start}): {exc}")
             rows.append({"scene": scene.name, "case": scene.source.stem, "branch": start,
@@ -60,6 +65,8 @@ def run(args: argparse.Namespace) -> int:
     table = pd.DataFrame(rows)
     out = args.out or args.results / "crosscheck"
     write(table, out)
+    if timed:
+        write_timing(pd.DataFrame(timed), out)
     print(summary_markdown(table))
     print(f"wrote {out}/crosscheck.csv, crosscheck.md, crosscheck.png")
     worst = worst_row(table)
@@ -131,6 +138,56 @@ def compare(scene: Scene, start: str, levels: tuple[int, ...], layout: Layout, f
         print(f"{scene.name} n={n} ({start}): worst field difference {worst:.2e}; Newton {row['newton_freefem']} "
               f"(FreeFEM) / {row['newton_getfem']} (GetFEM)", flush=True)
     return rows
+
+
+# Phases both codes time (FreeFEM: CPU seconds from run.json, one thread; the peer: wall
+# seconds of its own clock, one thread): name -> (FreeFEM's keys, summed; the peer's key).
+PHASES = {"assembly": (("bulk_assembly_s", "assembly_s"), "assembly_s"),
+          "factorisation": (("factorisation_s",), "factorisation_s"),
+          "newton": (("newton_s",), "newton_s")}
+
+
+def timing(scene: Scene, start: str, n: int, layout: Layout, repeat: int) -> dict:
+    """Level n run `repeat` times by each code as whole processes, FreeFEM and GetFEM
+    alternating (so that a change of the machine's load hits both): medians and ranges."""
+    import statistics
+
+    meshes = InlineMeshes(scene, [n], layout)
+    spec = problem(scene.solver_parameters(), scene.effects, scene.dimension,
+                   material_values(layout.material_file(scene.material)), meshes[n], start, pressed_depth(scene.table))
+    samples: dict[str, list[float]] = {}
+    for _ in range(repeat):
+        ours = runs_of(run_chain(scene, meshes, layout, True, quiet, pipelined=False))[n].record
+        theirs = run_peer(spec, layout.case_dir(scene.name) / f"getfem_n{n}_timing", 10 * scene.timeout_s)
+        add = lambda key, value: samples.setdefault(key, []).append(float(value))  # noqa: E731
+        add("wall_s_freefem", ours.wall_s)
+        add("wall_s_getfem", theirs.wall_s)
+        add("rss_mb_freefem", ours.peak_rss_mb)
+        add("rss_mb_getfem", theirs.peak_rss_mb)
+        for phase, (keys, key) in PHASES.items():
+            add(f"{phase}_s_freefem", sum(float(ours.value(k)) for k in keys))
+            add(f"{phase}_s_getfem", theirs.record[key])
+    row = {"scene": scene.name, "branch": start, "dimension": scene.dimension, "n": n, "dofs": ours.dofs,
+           "repeats": repeat}
+    for key, values in samples.items():
+        row[key] = statistics.median(values)
+        row[f"{key}_min"], row[f"{key}_max"] = min(values), max(values)
+    for what in ("wall_s", "rss_mb", *(f"{p}_s" for p in PHASES)):
+        row[f"ratio_{what}"] = row[f"{what}_freefem"] / max(row[f"{what}_getfem"], 1e-300)
+    return row
+
+
+def write_timing(table: pd.DataFrame, out: Path) -> None:
+    table.to_csv(out / "timing.csv", index=False, float_format="%.6g")
+    lines = ["| scene | branch | n | dofs | runs | whole process s FreeFEM / GetFEM (ratio) | peak MB FreeFEM / GetFEM (ratio) | "
+             "assembly ratio | factorisation ratio | Newton ratio |", "|---|---|---|---|---|---|---|---|---|---|"]
+    for r in table.itertuples(index=False):
+        lines.append(f"| {r.scene} | {r.branch} | {r.n} | {r.dofs:,} | {r.repeats} | {r.wall_s_freefem:.2f} / "
+                     f"{r.wall_s_getfem:.2f} ({r.ratio_wall_s:.2f}) | {r.rss_mb_freefem:.0f} / {r.rss_mb_getfem:.0f} "
+                     f"({r.ratio_rss_mb:.2f}) | {r.ratio_assembly_s:.2f} | {r.ratio_factorisation_s:.2f} | "
+                     f"{r.ratio_newton_s:.2f} |")
+    (out / "timing.md").write_text("Medians; ratio FreeFEM / GetFEM (below 1: FreeFEM faster or smaller).\n\n"
+                                   + "\n".join(lines) + "\n")
 
 
 def branch_or_disagree(fields: Fields, scene: Scene, spec: dict, work: Path, record: RunRecord) -> str:
