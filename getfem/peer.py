@@ -9,7 +9,7 @@ SI units, the Newton history, the contact integrals, the time of each phase and 
 memory. Written from docs/model.md, not from the FreeFEM scripts.
 
 Exit codes: 0 converged; 2 bad input (one `error:` line); 3 Newton did not converge (the
-output is still written); 4 GetFEM missing.
+output is still written) or GetFEM failed; 4 GetFEM missing.
 """
 
 from __future__ import annotations
@@ -54,8 +54,12 @@ def main(argv: list[str]) -> int:
     try:
         spec = json.loads(Path(argv[0]).read_text())
         result = solve(spec)
-    except (OSError, ValueError, KeyError, TypeError, MeshFileError) as exc:
+    except KeyError as exc:
+        return fail(f"{argv[0]}: no {exc} in the problem", EXIT_INPUT)
+    except (OSError, ValueError, TypeError, MeshFileError) as exc:
         return fail(f"{argv[0]}: {exc}", EXIT_INPUT)
+    except RuntimeError as exc:  # GetFEM's own errors (its message's last line says what)
+        return fail(f"GetFEM failed on {argv[0]}: {str(exc).strip().splitlines()[-1]}", EXIT_NOT_CONVERGED)
     Path(argv[1]).write_text(json.dumps(result) + "\n")
     return 0 if result["converged"] else EXIT_NOT_CONVERGED
 
