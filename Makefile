@@ -26,7 +26,7 @@ paper3d: $(STAMP) freefem
 scenes: $(STAMP) freefem
 	$(PY) -m harness scenes $(CLUSTER_FLAGS)
 
-test: $(STAMP) freefem
+test: $(STAMP) freefem getfem
 	$(PY) -m pytest -q
 
 # The fast study the slope-regression test compares with (tests/test_regression.py).
@@ -36,6 +36,27 @@ baseline: $(STAMP) freefem
 
 freefem:
 	@bash scripts/install-freefem.sh
+
+# GetFEM 5.4 for Debian's Python (python3-getfem): the cross-check's second code only.
+.PHONY: getfem crosscheck
+getfem:
+	@bash scripts/install-getfem.sh
+
+# FreeFEM against the GetFEM peer (issue 21, docs/crosscheck.md): the paper's scene in 2D and
+# 3D on both branches, then every scene of cases/ and cases/hard/ at its coarse levels (up
+# to n = 8 in 2D, 4 in 3D), field by field, into results/crosscheck/ (crosscheck.csv, .md,
+# .png). Exit 6 when a field differs by more than 1e-8 relative, naming field and level.
+crosscheck: $(STAMP) freefem getfem
+	$(PY) -m harness crosscheck cases/paper.toml cases/paper3d.toml --branches zero,pressed --out results/crosscheck/paper
+	$(PY) -m harness crosscheck cases/*.toml cases/hard/*.toml
+
+# The paper's Figs. 2-3 from both codes side by side with their difference (deformed mesh,
+# von Mises stress, phi, theta): the paper's scene at h = 1/64 and its 3D block at h = 1/8
+# (mid-plane y = 1/2), both branches, into results/paper/figures/ (~10 min on 2 cores).
+.PHONY: paper-figures
+paper-figures: $(STAMP) freefem getfem
+	$(PY) -m harness crosscheck cases/paper.toml --levels 64 --branches zero,pressed --figures results/paper/figures --out results/paper/figures/h64
+	$(PY) -m harness crosscheck cases/paper3d.toml --levels 8 --branches zero,pressed --figures results/paper/figures --out results/paper/figures/3d_h8
 
 $(STAMP): pyproject.toml
 	bash scripts/make-venv.sh $(PYTHON) $(VENV)
@@ -73,14 +94,19 @@ branches: $(STAMP) freefem
 # `make bench` repeats the timings that matter (finest level alone, the sweep, the CLI, and
 # `python -m harness solve CASE --n FINEST --force` as a whole process beside its own FreeFEM
 # run: `process`) five times, medians and min-max, into results/bench/ (bench.csv, bench.md); it waits
-# (up to 20 min) for a 1-minute load below 1.2 first.
+# (up to 20 min) for a 1-minute load below 1.2 first. Then FreeFEM beside the GetFEM peer
+# (docs/crosscheck.md): the paper's scene at h = 1/64 and its 3D block at h = 1/8, both from
+# zero, as whole processes, the two codes alternating, medians of 5 and their ratio per phase,
+# into results/bench/getfem/ (timing.md, timing.csv).
 .PHONY: cost bench
 cost: $(STAMP) freefem
 	$(PY) -m harness cost cases/paper.toml $(COST_FLAGS)
 
-bench: $(STAMP) freefem
+bench: $(STAMP) freefem getfem
 	$(PY) -m harness bench cases/paper.toml $(BENCH_FLAGS)
 	$(PY) -m harness solvers $(SOLVERS_FLAGS)
+	$(PY) -m harness crosscheck cases/paper.toml --levels 64 --repeat 5 --out results/bench/getfem/2d
+	$(PY) -m harness crosscheck cases/paper3d.toml --levels 8 --repeat 5 --out results/bench/getfem/3d
 
 # The solver table alone (issue 20): MUMPS_seq, UMFPACK64, PETSc field split + AMG, PETSc MUMPS
 # with and without BLR, PETSc geometric multigrid, on the paper scene at h = 1/64 and its 3D block at h = 1/16 (medians of

@@ -36,6 +36,8 @@ class ExitCode(enum.IntEnum):
     INPUT = 2  # bad input: case file, override, command line, material
     RUN = 3  # a FreeFEM run failed: diverged, max iterations, NaN, FreeFEM error, timeout
     ENVIRONMENT = 4  # the machine: permissions, full disk, missing tool, not enough memory
+    NO_PEER = 5  # crosscheck: GetFEM (python3-getfem) is not installed
+    DISAGREE = 6  # crosscheck: FreeFEM and GetFEM differ by more than 1e-8 relative
     INTERRUPTED = 130  # SIGINT, SIGTERM or SIGHUP
 
 

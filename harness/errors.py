@@ -33,3 +33,11 @@ class EnvironmentFault(HarnessError):
 
 class VerdictError(HarnessError):
     """Everything ran, but a verdict failed: a physical check, a slope outside the band."""
+
+
+class PeerMissing(EnvironmentFault):
+    """GetFEM (Debian's python3-getfem) is not installed: only `crosscheck` needs it."""
+
+
+class Disagreement(VerdictError):
+    """FreeFEM and the GetFEM peer differ by more than the cross-check's tolerance."""

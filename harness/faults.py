@@ -8,6 +8,8 @@ The table (also in the README):
     2   INPUT        bad input: case file, override, command line, material, level set
     3   RUN          a FreeFEM run failed: diverged, max iterations, NaN, FreeFEM error, timeout
     4   ENVIRONMENT  permissions, full disk, read-only or wrong-kind path, missing tool, memory
+    5   NO_PEER      crosscheck: GetFEM (python3-getfem) is not installed
+    6   DISAGREE     crosscheck: FreeFEM and GetFEM differ by more than 1e-8 relative
     130 INTERRUPTED  SIGINT, SIGTERM or SIGHUP
 """
 
@@ -24,8 +26,8 @@ from typing import Callable, Iterator
 
 from harness import signals
 from harness.contract import ExitCode
-from harness.errors import (EnvironmentFault, FieldsError, HarnessError, MeshError, RunError, SceneError,
-                            VerdictError)
+from harness.errors import (Disagreement, EnvironmentFault, FieldsError, HarnessError, MeshError, PeerMissing,
+                            RunError, SceneError, VerdictError)
 
 # errno -> what a user should hear about the path involved.
 MEANING = {
@@ -73,6 +75,10 @@ def exit_code(exc: BaseException) -> ExitCode:
     """The exit code of an exception that ended a command."""
     if isinstance(exc, KeyboardInterrupt):
         return ExitCode.INTERRUPTED
+    if isinstance(exc, PeerMissing):
+        return ExitCode.NO_PEER
+    if isinstance(exc, Disagreement):
+        return ExitCode.DISAGREE
     if isinstance(exc, VerdictError):
         return ExitCode.VERDICT
     if isinstance(exc, (EnvironmentFault, OSError, MemoryError)):

@@ -76,9 +76,9 @@ class RunRecord:
     initial_guess_s: float | None = None
     max_abs_u: float | None = None
     contact_force: float | None = None
-    friction_force: float | None = None
+    friction_force: float | None = None  # the magnitude of friction_force_vector
     friction_force_vector: list[float] | None = None  # its x, y(, z) components
-    active_length: float | None = None
+    active_measure: float | None = None  # the closed part of Gamma_3: a length in 2D, an area in 3D
     heat_in_contact: float | None = None
     charge_in_contact: float | None = None
     checks: dict[str, Any] | None = None
@@ -125,7 +125,7 @@ class RunRecord:
     def from_json(cls, data: Any, source: str = "run.json") -> RunRecord:
         if not isinstance(data, dict):
             raise FieldsError(f"{source}: not a JSON object")
-        unknown = sorted(set(data) - KEYS)
+        unknown = sorted(set(data) - KEYS - set(RENAMED_KEYS))
         if unknown:
             raise FieldsError(f"{source}: undeclared key {unknown[0]!r} (harness/record.py RunRecord)")
         missing = [k for k in ALWAYS_WRITTEN if k not in data]
@@ -135,14 +135,22 @@ class RunRecord:
         odd = sorted(set(checks) - CHECK_KEYS)
         if odd:
             raise FieldsError(f"{source}: undeclared check {odd[0]!r} (harness/record.py CHECK_KEYS)")
-        return cls(**data)
+        return cls(**renamed(data))
 
 
+# Keys of run.json files written before a rename (issue 21): old name -> new name. In 3D
+# `active_length` was an area; `friction_force` was the x component (an old file keeps it).
+RENAMED_KEYS = {"active_length": "active_measure"}
 KEYS = frozenset(f.name for f in dataclasses.fields(RunRecord))
 # What output.idp writes on every converged run (the rest depends on the scene).
 ALWAYS_WRITTEN = ("n", "converged", "reason", "newton_iterations", "dofs", "fields")
 HARNESS_KEYS = ("wall_s", "pipelined", "waited_s", "peak_rss_source", "started_from",
                 "ranks", "parallel", "post_pass_peak_rss_mb", "post_pass_residuals")
+
+
+def renamed(data: dict[str, Any]) -> dict[str, Any]:
+    """`data` with the old key names of RENAMED_KEYS under their new names."""
+    return {RENAMED_KEYS.get(key, key): value for key, value in data.items()}
 
 
 def read_run_json(directory: Path) -> RunRecord | None:

@@ -16,7 +16,7 @@ from harness.writers import PRECISE_CSV_FORMAT, csv_text, json_text
 # Physical quantities of each run worth keeping next to the errors (from run.json).
 RUN_FACTS = (
     "converged", "newton_iterations", "wall_s", "dofs", "max_theta", "min_phi", "max_phi",
-    "max_abs_u", "contact_force", "active_length", "initial_guess",
+    "max_abs_u", "contact_force", "active_measure", "initial_guess",
 )
 
 

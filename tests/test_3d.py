@@ -88,12 +88,12 @@ def friction_run(tmp_path: Path, name: str, n: int, bound: float, traction: tupl
 def test_a_tangential_load_below_s_area_sticks(tmp_path):
     """Free sides: the foundation alone holds the tangential load 0.5 S at 30 degrees. Every
     node sticks, and the friction force balances the load (run.json's friction_force is its
-    x component in 3D, friction_force_vector all of it)."""
+    magnitude, friction_force_vector its components)."""
     load = (0.5 * S * math.cos(math.pi / 6), 0.5 * S * math.sin(math.pi / 6))
     run = friction_run(tmp_path, "stick3d", 2, S, load, ("free",) * 4)
     assert run.record.converged
     assert run.record.slip_nodes[-1] == 0
-    assert run.record.friction_force == pytest.approx(load[0], rel=1e-8)
+    assert run.record.friction_force == pytest.approx(math.hypot(*load), rel=1e-8)
     # Its vector carries the y component too (the load is at 30 degrees), none along z.
     assert run.record.friction_force_vector == pytest.approx([load[0], load[1], 0.0], rel=1e-8, abs=1e-12)
     assert run.record.checks["contact_force_on_body"][:2] == pytest.approx([-load[0], -load[1]], rel=1e-8)

@@ -86,7 +86,7 @@ def test_solve_passes_the_scene_to_freefem_and_summarises_run_json(capsys, stub_
     assert "paper n=4: converged in 3 Newton iterations" in out
     record = read_run_json(stub_layout.level_dir("paper", 4))
     # The stub echoes -loads.traction_y and -electric_contact.L (inf goes as 1e300).
-    assert record.contact_force == -12.5 and record.active_length == 1e300
+    assert record.contact_force == -12.5 and record.active_measure == 1e300
     assert record.wall_s > 0
     main_edp = (stub_layout.level_dir("paper", 4) / "main.edp").read_text().splitlines()
     # One macro per effect of the scene, then the material and the scheme.

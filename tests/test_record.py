@@ -59,3 +59,11 @@ def test_to_json_round_trips_and_leaves_absent_keys_out():
     assert record.to_json() == {"n": 4, "converged": True, "wall_s": 1.5}
     assert RunRecord.from_json({**record.to_json(), "reason": "", "newton_iterations": 1, "dofs": 1,
                                 "fields": []}).wall_s == 1.5
+
+
+def test_a_run_json_written_before_the_rename_still_reads():
+    """`active_length` (an area in 3D) is now `active_measure`; a cached run.json from before
+    the rename reads with its value under the new name."""
+    old = {"n": 2, "converged": True, "reason": "converged", "newton_iterations": 3, "dofs": 90,
+           "fields": ["u"], "active_length": 2.0}
+    assert RunRecord.from_json(old).active_measure == 2.0

@@ -52,7 +52,7 @@ STARTS: dict[str, list[str]] = {
 }
 
 FACTS = ("max_theta", "min_phi", "max_phi", "max_abs_u", "contact_force", "heat_in_contact",
-         "charge_in_contact", "active_length")
+         "charge_in_contact", "active_measure")
 
 
 def branch_row(start: str, levels: Sequence[int], layout: Layout, jobs: int, force: bool) -> dict[str, Any]:
@@ -107,7 +107,7 @@ def markdown(table: pd.DataFrame) -> str:
         slopes = " / ".join(cell(row.get(f"slope_{f}")) for f in ("u", "phi", "theta", "total"))
         lines.append(f"| {row['start']} | {row['branch']} | {row['newton_iterations']} | {cell(row['max_theta'])} | "
                      f"[{cell(row['min_phi'])}, {cell(row['max_phi'])}] | {cell(row['max_abs_u'])} | {cell(row['contact_force'])} | "
-                     f"{cell(row['heat_in_contact'])} | {cell(row['charge_in_contact'])} | {cell(row['active_length'])} | {slopes} | "
+                     f"{cell(row['heat_in_contact'])} | {cell(row['charge_in_contact'])} | {cell(row['active_measure'])} | {slopes} | "
                      f"{row['checks']} |")
     return "\n".join(lines) + "\n"
 

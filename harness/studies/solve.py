@@ -50,7 +50,7 @@ def describe_run(case: str, record: RunRecord, directory: Path, reused: bool) ->
         f" (initial guess {r.initial_guess}){' [reused]' if reused else ''}",
         f"  dofs {r.dofs}, wall {fmt(r.wall_s)} s (assembly {fmt(r.assembly_s)} s, solves {fmt(r.solve_s)} s)",
         f"  max theta {fmt(r.max_theta)}, phi in [{fmt(r.min_phi)}, {fmt(r.max_phi)}], max |u| {fmt(r.max_abs_u)}",
-        f"  contact force {fmt(r.contact_force)}, active length {fmt(r.active_length)}",
+        f"  contact force {fmt(r.contact_force)}, closed part of Gamma_3 {fmt(r.active_measure)}",
         f"  results in {directory}",
     ])
 

@@ -163,7 +163,7 @@ def summary_row(result: CaseResult) -> dict[str, Any]:
         "total_wall_s": sum(r.wall_s for r in result.levels),
     }
     record = last.record or RunRecord()
-    for key in ("max_abs_u", "min_phi", "max_phi", "max_theta", "contact_force", "active_length",
+    for key in ("max_abs_u", "min_phi", "max_phi", "max_theta", "contact_force", "active_measure",
                 "heat_in_contact", "charge_in_contact"):
         row[key] = record.value(key)
     if last.status == "converged":

@@ -57,7 +57,7 @@ BANDS_3D = {"L2": (1.8, 2.1), "H1": (0.95, 1.05)}
 
 def band(case: str, norm: str) -> tuple[float, float]:
     return (BANDS_3D if case in MMS_CASES_3D else BANDS)[norm]
-GCI_OUTPUTS = ("contact_force", "max_abs_u", "max_theta", "heat_in_contact", "active_length")
+GCI_OUTPUTS = ("contact_force", "max_abs_u", "max_theta", "heat_in_contact", "active_measure")
 
 
 def mms_errors(scene: Scene, levels: Sequence[int], layout: Layout, jobs: int = 2, force: bool = False,
