@@ -1,14 +1,15 @@
-"""The one study engine: run a set of levels of a scene and return each level's outcome.
+"""The one level runner: `run_levels` runs a set of levels of a scene and returns each
+level's outcome, `{n: LevelOutcome}`, in one of two ways:
 
-Two ways to run levels, both returning `{n: LevelOutcome}`:
-
-- `run_levels`: independent levels (each from the case's own start), `jobs` at a time;
-- `run_chain`: coarsest first, each level warm-started from the converged one below it,
-  pipelined or not; it stops at its first failure.
+- a chain (the default): coarsest first, each level warm-started from the converged one
+  below it (when the scene starts from `coarser`), pipelined or not; it stops at its first
+  failure;
+- independent levels (`chain=False`): each from the case's own start, `jobs` at a time;
+  every level runs.
 
 Meshes come from a `Mapping[int, Path]` (`BackgroundMeshes` makes them in a forked worker
-while the runs go on). `run_chains` drives several independent chains through an
-`Executor`: the seam where a distributed executor (Dask) is plugged in.
+while the runs go on). Independent pieces of work (whole chains, whole studies) are mapped
+by `harness.executor.each`, the seam a Dask cluster serves.
 """
 
 from __future__ import annotations
@@ -20,7 +21,7 @@ import sys
 import tempfile
 import threading
 import time
-from concurrent.futures import Executor, ProcessPoolExecutor, ThreadPoolExecutor, as_completed
+from concurrent.futures import ProcessPoolExecutor, ThreadPoolExecutor, as_completed
 from dataclasses import dataclass
 from pathlib import Path
 from typing import Callable, Iterator, Mapping, Sequence
@@ -161,9 +162,28 @@ def run_levels(
     scene: Scene,
     meshes: Mapping[int, Path],
     layout: Layout,
-    jobs: int,
+    *,
     force: bool = False,
     progress: Progress = stderr_line,
+    chain: bool = True,
+    pipelined: bool = True,
+    warm: WarmStart | None = None,
+    jobs: int = 1,
+) -> dict[int, LevelOutcome]:
+    """Every level of `meshes`: a chain (`warm` its first level's start, `pipelined` as
+    `_chain` says), or with `chain=False` independent levels, `jobs` at a time."""
+    if chain:
+        return _chain(scene, meshes, layout, force, progress, pipelined, warm)
+    return _independent(scene, meshes, layout, jobs, force, progress)
+
+
+def _independent(
+    scene: Scene,
+    meshes: Mapping[int, Path],
+    layout: Layout,
+    jobs: int,
+    force: bool,
+    progress: Progress,
 ) -> dict[int, LevelOutcome]:
     """Every level from the case's own start, `jobs` at a time, largest first (the finest
     level dominates the wall time). Every level runs; failures are outcomes."""
@@ -189,19 +209,19 @@ def attempt(scene: Scene, meshes: Mapping[int, Path], n: int, layout: Layout, fo
         return LevelOutcome.of_failure(n, exc, layout.failed_dir(scene.name, n), time.perf_counter() - start)
 
 
-def run_chain(
+def _chain(
     scene: Scene,
     meshes: Mapping[int, Path],
     layout: Layout,
-    force: bool = False,
-    progress: Progress = stderr_line,
-    pipelined: bool = True,
-    warm: WarmStart | None = None,
-    chained: bool = True,
+    force: bool,
+    progress: Progress,
+    pipelined: bool,
+    warm: WarmStart | None,
 ) -> dict[int, LevelOutcome]:
     """Coarsest first, each level started from the one below it (from `warm` for the first,
     or the case's own start); it stops at the first failure, which is the last outcome.
-    `chained=False` runs the same levels one by one, each from the case's own start.
+    A scene that does not start from `coarser` runs the same levels one by one, each from
+    its own start.
 
     Pipelined (the default): while a level runs, the next one is already started (its
     compilation, meshes and bulk assembly, freefem/bulk.idp) and waits for this level's
@@ -211,7 +231,7 @@ def run_chain(
     level alone."""
     outcomes: dict[int, LevelOutcome] = {}
     levels = sorted(meshes)
-    chained = chained and scene.initial_guess == "coarser"  # any other start ignores the level below
+    chained = scene.initial_guess == "coarser"  # any other start ignores the level below
     current: LevelRun | None = None
     following: LevelRun | None = None
     finest: LevelRun | None = None
@@ -280,50 +300,6 @@ def launched_early(scene: Scene, meshes: Mapping[int, Path], n: int, coarser: in
         level.abandon()
         return None
     return level
-
-
-@dataclass(frozen=True)
-class Chain:
-    """One independent chain of a batch: a scene, its meshes and how to run it."""
-
-    scene: Scene
-    levels: tuple[int, ...]
-    pipelined: bool = True
-    chained: bool = True
-
-
-def run_chains(
-    chains: Sequence[Chain],
-    layout: Layout,
-    force: bool = False,
-    executor: Executor | None = None,
-    progress: Progress = stderr_line,
-) -> list[dict[int, LevelOutcome]]:
-    """Independent chains, side by side through `executor` (its `submit` is all that is used),
-    or one after the other in this process when there is none."""
-
-    def one(chain: Chain) -> dict[int, LevelOutcome]:
-        meshes = InlineMeshes(chain.scene, chain.levels, layout)
-        return run_chain(chain.scene, meshes, layout, force, progress, chain.pipelined, chained=chain.chained)
-
-    if executor is None:
-        return [one(chain) for chain in chains]
-    futures = [executor.submit(one, chain) for chain in chains]
-    return [future.result() for future in futures]
-
-
-def study_outcomes(
-    scene: Scene,
-    meshes: Mapping[int, Path],
-    layout: Layout,
-    jobs: int,
-    force: bool = False,
-    progress: Progress = stderr_line,
-) -> dict[int, LevelOutcome]:
-    """The levels of a convergence study, as the case says to start them."""
-    if scene.initial_guess == "coarser":
-        return run_chain(scene, meshes, layout, force, progress)
-    return run_levels(scene, meshes, layout, jobs, force, progress)
 
 
 def describe(outcome: LevelOutcome) -> str:

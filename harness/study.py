@@ -8,7 +8,7 @@ from dataclasses import dataclass
 
 import pandas as pd
 
-from harness.engine import BackgroundMeshes, Progress, runs_of, stderr_line, study_outcomes
+from harness.engine import BackgroundMeshes, Progress, run_levels, runs_of, stderr_line
 from harness.errors import RunError
 from harness.fields import read_fields
 from harness.freefem import freefem_version
@@ -54,7 +54,8 @@ def run_study(
     force: bool = False,
     progress: Progress = stderr_line,
 ) -> Study:
-    """Every level (engine.study_outcomes), then the errors against the finest and the
+    """Every level (engine.run_levels: a chain when the case starts from `coarser`, else
+    independent levels), then the errors against the finest and the
     slopes; a RunError naming the first failed level if any failed."""
     levels = tuple(sorted(set(levels)))
     if len(levels) < 2:
@@ -63,7 +64,8 @@ def run_study(
     freefem_version()  # asked once here, not by every worker thread at once
     start = time.perf_counter()
     with BackgroundMeshes(scene, levels, layout) as meshes:
-        runs = runs_of(study_outcomes(scene, meshes, layout, jobs, force, progress))
+        runs = runs_of(run_levels(scene, meshes, layout, force=force, progress=progress,
+                                  chain=scene.initial_guess == "coarser", jobs=jobs))
     fields = tuple(f for f in NORMED_FIELDS if f in (runs[levels[-1]].record.fields or NORMED_FIELDS))
     table = error_table(runs, fields)
     return Study(scene, fields, table, slopes(table, fields), runs, time.perf_counter() - start)

@@ -199,7 +199,7 @@ def test_manufactured_contact3d_converges_at_the_p1_rates_on_every_branch(tmp_pa
     1/4 -> 1/8). The exact state visits open and closed, stick and slip nodes on Gamma_3."""
     from harness.layout import Layout
     from harness.scene import load_scene
-    from harness.studies.verify import mms_errors
+    from harness.verification import mms_errors
 
     layout = Layout(results=tmp_path / "results")
     scene = load_scene(CASES / "mms" / "contact3d.toml")

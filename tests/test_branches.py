@@ -9,7 +9,7 @@ import json
 import pandas as pd
 import pytest
 
-from harness.studies import branches
+from harness import branch_starts as branches
 from harness.layout import REPO, Layout
 from harness.scene import load_scene
 

@@ -21,7 +21,7 @@ from harness.layout import REPO, Layout
 from harness.mms import MACROS, X, Y, derive, fe_errors, macros, material_constants, numeric, parse_exact
 from harness.scene import load_scene
 from harness.script import main_script
-from harness.studies.verify import BANDS, MMS_CASES, mms_errors, mms_rates
+from harness.verification import BANDS, MMS_CASES, mms_errors, mms_rates
 
 COMMITTED = REPO / "results" / "verification" / "mms_levels.csv"
 

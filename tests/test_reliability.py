@@ -500,12 +500,13 @@ def test_meshing_in_this_process_leaves_the_signal_handlers_in_force(tmp_path):
     """gmsh.initialize() resets SIGTERM and SIGHUP to their defaults behind Python's back: a
     SIGTERM after the first mesh killed the harness outright, temp dirs left behind."""
     from harness import signals
-    from harness.executor import mesh_task
     from harness.layout import Layout
+    from harness.mesh import build_mesh
     from harness.scene import load_scene
 
     with signals.handled():
-        mesh_task(load_scene(PAPER), 2, Layout(results=tmp_path))
+        scene = load_scene(PAPER)
+        build_mesh(scene.geometry, 2, Layout(results=tmp_path).meshes_dir(scene.name))
         assert all(catches(os.getpid(), signum) for signum in (signal.SIGTERM, signal.SIGHUP, signal.SIGINT))
 
 
