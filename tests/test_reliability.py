@@ -360,11 +360,12 @@ def test_a_backup_left_by_a_killed_harness_is_restored(capsys, tmp_path):
 # ---- 7, 10: guards -------------------------------------------------------------------------
 
 def test_the_memory_estimate_matches_the_measured_levels():
-    """An upper bound of the measured peaks (results/cost/scaling.csv, VmHWM in MiB), within 20 %."""
+    """An upper bound of the measured peaks (tests/gold/scaling.csv: `make cost`'s table, pinned by
+    `make gold`; VmHWM in MiB), within 20 %."""
     import pandas as pd
 
     effects = ("piezoelectric", "thermal")
-    measured = pd.read_csv(REPO / "results" / "cost" / "scaling.csv").set_index("n")
+    measured = pd.read_csv(REPO / "tests" / "gold" / "scaling.csv").set_index("n")
     for n, dofs in ((64, 66_820), (128, 264_708), (256, 1_053_700)):
         estimated_dofs, need = guards.memory_estimate(4.0, 1.0, n, effects)
         assert estimated_dofs == dofs == measured.loc[n, "dofs"]
