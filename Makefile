@@ -18,7 +18,17 @@ convergence: $(STAMP) freefem
 scenes: $(STAMP) freefem
 	$(PY) -m harness scenes $(CLUSTER_FLAGS)
 
+# The suite without its long tests (each marked `heavy`: 10 s or more); make test-heavy runs
+# those, make test-all both.
+.PHONY: test-heavy test-all
 test: $(STAMP) freefem
+	$(PY) -m pytest -q -m "not heavy"
+	@echo "left out: the tests marked heavy (about 2 min more); run them with make test-heavy, or everything with make test-all"
+
+test-heavy: $(STAMP) freefem
+	$(PY) -m pytest -q -m heavy
+
+test-all: $(STAMP) freefem
 	$(PY) -m pytest -q
 
 # Gold data: what tests compare with lives in tests/gold/, apart from results/ (which the

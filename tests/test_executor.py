@@ -151,6 +151,7 @@ def test_two_workers_running_the_same_levels_at_once_leave_one_complete_result(d
     assert sorted(again) == [2, 4] and all(run.reused for run in again.values())
 
 
+@pytest.mark.heavy  # 13 s: `make test-heavy`
 def test_scenes_study_on_a_local_cluster_writes_the_local_csvs(tmp_path):
     """`python -m harness scenes --cluster local:2` on two scenes, levels 2-8: each scene's
     convergence.csv and the summary equal the local run's but for the measurements of the

@@ -217,7 +217,7 @@ def test_a_newton_failure_on_ranks_reads_as_on_one_rank(tmp_path, capsys):
 
 
 @pytest.mark.skipif(bool(mpi_missing()), reason=mpi_missing() or "-")
-@pytest.mark.parametrize("ranks", [3, 5])
+@pytest.mark.parametrize("ranks", [3, pytest.param(5, marks=pytest.mark.heavy)])  # 5 ranks: 12 s
 def test_more_ranks_with_non_zero_dirichlet_data_give_the_one_rank_solution(ranks, tmp_path):
     """The manufactured contact case (non-zero Dirichlet data on Gamma_1): where a rank's
     artificial boundary meets Gamma_1, the start must take its owners' values, or the ranks
@@ -238,6 +238,7 @@ def test_more_ranks_with_non_zero_dirichlet_data_give_the_one_rank_solution(rank
 
 
 @pytest.mark.skipif(bool(mpi_missing()), reason=mpi_missing() or "-")
+@pytest.mark.heavy  # 38 s: `make test-heavy`
 def test_two_ranks_give_the_one_rank_solution_in_3d(tmp_path):
     results = tmp_path / "results"
     one = solve(CASES / "paper3d.toml", 4, results, "scene.name=one")
@@ -253,6 +254,7 @@ def test_two_ranks_give_the_one_rank_solution_in_3d(tmp_path):
 
 
 @pytest.mark.skipif(bool(mpi_missing()), reason=mpi_missing() or "-")
+@pytest.mark.heavy  # 13 s: `make test-heavy`
 def test_the_scale_table_compares_each_rank_count_with_one_rank(tmp_path):
     from harness.layout import Layout
     from harness.scale_out import mpi_table
