@@ -7,7 +7,7 @@ from __future__ import annotations
 
 import sys
 from dataclasses import dataclass, field
-from typing import Any, Iterable
+from typing import Any, Iterable, Mapping
 
 from harness.checks import CHECK_FLAGS, physical_checks
 from harness.errors import FieldsError
@@ -79,10 +79,10 @@ class Checked:
     warnings: tuple[str, ...] = ()
 
 
-def check_run(scene: Scene, run: RunResult) -> Checked:
-    """Evaluate the checks of one converged run (harness/checks.py)."""
-
-    fields = solution_fields(run)
+def check_run(scene: Scene, run: RunResult, fields: Fields | None = None) -> Checked:
+    """Evaluate the checks of one converged run (harness/checks.py); `fields`: its solution,
+    when already parsed (else read here)."""
+    fields = fields or solution_fields(run)
     warnings = []
     if fields is not None and "u" in fields.values:
         gradient = max_displacement_gradient(fields.points, fields.cells, fields.field("u"))
@@ -113,11 +113,13 @@ def fmt(value: Any) -> str:
     return f"{value:.3g}" if isinstance(value, float) else str(value)
 
 
-def print_checks(scene: Scene, runs: Iterable[RunResult]) -> list[Checked]:
-    """Print each run's checks (stdout) and warnings (stderr); the list, for the verdict."""
+def print_checks(scene: Scene, runs: Iterable[RunResult],
+                 solutions: Mapping[int, Fields] | None = None) -> list[Checked]:
+    """Print each run's checks (stdout) and warnings (stderr); the list, for the verdict.
+    `solutions`: the runs' parsed fields by level, when a study has them already."""
     out = []
     for run in runs:
-        checked = check_run(scene, run)
+        checked = check_run(scene, run, (solutions or {}).get(run.n))
         print(checked.line)
         for warning in checked.warnings:
             print(f"warning: {warning}", file=sys.stderr)

@@ -47,7 +47,7 @@ def convergence(scene: Scene, levels: tuple[int, ...], layout: Layout, jobs: int
 def verdict(study: Study) -> str | None:
     """The slope's band first, then every level's physical checks (harness/run_checks.py)."""
     scene = study.scene
-    failed = failed_checks(print_checks(scene, [study.runs[n] for n in sorted(study.runs)]))
+    failed = failed_checks(print_checks(scene, [study.runs[n] for n in sorted(study.runs)], study.solutions))
     low, high = scene.slope_band
     if not study.passed:
         return f"total slope {study.total_slope:.3f} is outside the band [{low}, {high}] of {scene.source}"
