@@ -190,16 +190,16 @@ def _independent(
     outcomes: dict[int, LevelOutcome] = {}
     with ThreadPoolExecutor(max_workers=max(1, jobs)) as pool:
         # The mesh is looked up in the worker, which waits for it there.
-        futures = {pool.submit(attempt, scene, meshes, n, layout, force, None): n
+        futures = {pool.submit(_attempt, scene, meshes, n, layout, force, None): n
                    for n in sorted(meshes, reverse=True)}
         for count, future in enumerate(as_completed(futures), start=1):
             outcome = future.result()
             outcomes[outcome.n] = outcome
-            progress(f"[{count}/{len(meshes)}] n={outcome.n} {describe(outcome)}")
+            progress(f"[{count}/{len(meshes)}] n={outcome.n} {_describe(outcome)}")
     return dict(sorted(outcomes.items()))
 
 
-def attempt(scene: Scene, meshes: Mapping[int, Path], n: int, layout: Layout, force: bool,
+def _attempt(scene: Scene, meshes: Mapping[int, Path], n: int, layout: Layout, force: bool,
             warm: WarmStart | None) -> LevelOutcome:
     """One level run alone, its failure classified."""
     start = time.perf_counter()
@@ -245,8 +245,8 @@ def _chain(
             current = current or LevelRun(scene, meshes[n], n, layout, force)
             try:
                 cached = current.start(warm if chained else None)
-                if early and finest is None and count < len(levels) - 1 and mesh_ready(meshes, top):
-                    finest = launched_early(scene, meshes, top, levels[-2], layout, force)
+                if early and finest is None and count < len(levels) - 1 and _mesh_ready(meshes, top):
+                    finest = _launched_early(scene, meshes, top, levels[-2], layout, force)
                     early = finest is not None
                 ahead: HarnessError | None = None
                 if count < len(levels):
@@ -270,7 +270,7 @@ def _chain(
                 progress(f"[{count}/{len(levels)}] n={n} FAILED")
                 break
             outcomes[n] = LevelOutcome.of_run(run)
-            progress(f"[{count}/{len(levels)}] n={n} {describe(outcomes[n])}")
+            progress(f"[{count}/{len(levels)}] n={n} {_describe(outcomes[n])}")
             warm = run.warm_start(meshes[n])
             current, following = following, None
     finally:
@@ -280,13 +280,13 @@ def _chain(
     return outcomes
 
 
-def mesh_ready(meshes: Mapping[int, Path], n: int) -> bool:
+def _mesh_ready(meshes: Mapping[int, Path], n: int) -> bool:
     """Whether looking level n's mesh up would not wait (a background mesher may still run)."""
     ready = getattr(meshes, "ready", None)
     return ready(n) if callable(ready) else True
 
 
-def launched_early(scene: Scene, meshes: Mapping[int, Path], n: int, coarser: int, layout: Layout,
+def _launched_early(scene: Scene, meshes: Mapping[int, Path], n: int, coarser: int, layout: Layout,
                    force: bool) -> LevelRun | None:
     """Level n's FreeFEM, started now to wait for the state of level `coarser`; None when its
     mesh or launch fails (the chain meets that failure again in its turn, in level order)."""
@@ -302,7 +302,7 @@ def launched_early(scene: Scene, meshes: Mapping[int, Path], n: int, coarser: in
     return level
 
 
-def describe(outcome: LevelOutcome) -> str:
+def _describe(outcome: LevelOutcome) -> str:
     if not outcome.ok:
         return "FAILED"
     run = outcome.run

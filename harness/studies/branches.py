@@ -19,7 +19,8 @@ least-squares slope of each field's error against the finest level, and the stre
 physical checks (harness/checks.py) on every level. A start that fails on
 some level is reported with the level and the reason, not left out.
 Writes branches.csv, branches.md, and each study's convergence.csv / summary.json /
-convergence.png under results/branches/<start>/.
+convergence.png under results/branches/<start>/. Exit status 1 when a start converged but
+failed a physical check.
 """
 
 from __future__ import annotations
@@ -89,5 +90,12 @@ def run(args: argparse.Namespace) -> int:
         write_text(markdown(table), args.results / "branches.md")
         print(markdown(table))
 
-    run_pipeline(plan, runs, report)
+    def verdict(rows: list[dict[str, Any]]) -> str | None:
+        """A start that converged with a failed physical check fails the study (a start that
+        did not converge is a finding of the table, reported with its reason)."""
+        bad = [f"{row['start']} ({row['checks']})" for row in rows
+               if row["status"] == "converged" and row["checks"] != "pass"]
+        return f"physical checks failed on the branch from {', '.join(bad)}" if bad else None
+
+    run_pipeline(plan, runs, report, verdict)
     return 0
