@@ -39,7 +39,7 @@ from harness.pipeline import Guarded, Plan, run_pipeline
 from harness.run import run_level
 from harness.scene import load_scene
 from harness.unknowns import Unknowns
-from harness.writers import write_csv, write_text
+from harness.writers import markdown_table, write_csv, write_text
 
 CASES = REPO / "cases"
 DEFAULT_RESULTS = REPO / "results" / "solvers"
@@ -121,32 +121,32 @@ def rank_row(case: str, n: int, ranks: int, layout: Layout, say: Callable[[str],
 def rank_markdown(table: pd.DataFrame) -> str:
     lines = ["# Krylov iterations against MPI ranks (python -m harness solvers --ranks)", "",
              "One-level RAS, MUMPS_seq per subdomain, from zero; 1 rank: the sequential scheme (a full "
-             "factorisation as GMRES's preconditioner). Oversubscribed past 2 ranks (times not comparable).", "",
-             "| scene | n | ranks | status | Newton its | Krylov its per step | max per step |",
-             "|---|---|---|---|---|---|---|"]
+             "factorisation as GMRES's preconditioner). Oversubscribed past 2 ranks (times not comparable).", ""]
+    rows = []
     for _, r in table.iterrows():
         its = r.get("krylov_iterations", "") if r["status"] == "ok" else ""
         top = int(r["max_krylov_per_step"]) if r["status"] == "ok" else ""
         newton = int(r["newton_iterations"]) if r["status"] == "ok" else ""
-        lines.append(f"| {r['scene']} | {r['n']} | {r['ranks']} | {r['status']} | {newton} | {its} | {top} |")
-    return "\n".join(lines) + "\n"
+        rows.append([r["scene"], r["n"], r["ranks"], r["status"], newton, its, top])
+    return "\n".join(lines) + "\n" + markdown_table(
+        ("scene", "n", "ranks", "status", "Newton its", "Krylov its per step", "max per step"), rows)
 
 
 def markdown(table: pd.DataFrame) -> str:
     lines = ["# Solver table (python -m harness solvers)", "",
              "Medians of the repeats of each level, run alone from the chain below it. Times in seconds,",
-             "memory in MiB (FreeFEM's VmHWM). set-up: factorisation or preconditioner set-up.", "",
-             "| scene | n | dofs | solver | status | wall | bulk assembly | set-up | solve | Newton | peak MiB "
-             "| Newton its | Krylov its per step |",
-             "|---|---|---|---|---|---|---|---|---|---|---|---|---|"]
+             "memory in MiB (FreeFEM's VmHWM). set-up: factorisation or preconditioner set-up.", ""]
+    rows = []
     for _, r in table.iterrows():
         if r["status"] != "ok":
-            lines.append(f"| {r['scene']} | {r['n']} | | {r['solver']} | {r['status']} | | | | | | | | |")
+            rows.append([r["scene"], r["n"], "", r["solver"], r["status"], *[""] * 8])
             continue
-        lines.append(f"| {r['scene']} | {r['n']} | {int(r['dofs']):,} | {r['solver']} | ok | {r['wall_s']:.2f} "
-                     f"| {r['bulk_assembly_s']:.2f} | {r['factorisation_s']:.2f} | {r['solve_s']:.2f} "
-                     f"| {r['newton_s']:.2f} | {r['peak_rss_mb']:,.0f} | {int(r['newton_iterations'])} "
-                     f"| {r['linear_iterations']} |")
+        rows.append([r["scene"], r["n"], f"{int(r['dofs']):,}", r["solver"], "ok", f"{r['wall_s']:.2f}",
+                     f"{r['bulk_assembly_s']:.2f}", f"{r['factorisation_s']:.2f}", f"{r['solve_s']:.2f}",
+                     f"{r['newton_s']:.2f}", f"{r['peak_rss_mb']:,.0f}", int(r["newton_iterations"]),
+                     r["linear_iterations"]])
+    lines.append(markdown_table(("scene", "n", "dofs", "solver", "status", "wall", "bulk assembly", "set-up", "solve",
+                                 "Newton", "peak MiB", "Newton its", "Krylov its per step"), rows).rstrip("\n"))
     options = {r["solver"]: r["options"] for _, r in table.iterrows() if r["options"]}
     lines += ["", "PETSc options (run.petsc_options):", ""]
     lines += [f"- `{name}`: `{text}`" for name, text in options.items()]
