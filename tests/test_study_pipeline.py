@@ -4,7 +4,6 @@ had neither before (issue 23, item 2)."""
 
 from __future__ import annotations
 
-from pathlib import Path
 
 import pytest
 
