@@ -8,7 +8,7 @@ workers must reach by the same path (a shared file system on a cluster); each le
 swapped in atomically (harness/run.py), so two workers finishing at once, or a task rerun
 after its worker died, leave one complete result.
 
-  cluster(scheduler, cluster)  None (this process) without either; else a DaskExecutor on
+  cluster(scheduler, local)    None (this process) without either; else a DaskExecutor on
                                the scheduler at tcp://host:port, or on a local cluster of
                                N worker processes ("local:N")
 
