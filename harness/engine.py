@@ -190,7 +190,7 @@ def _independent(
     outcomes: dict[int, LevelOutcome] = {}
     with ThreadPoolExecutor(max_workers=max(1, jobs)) as pool:
         # The mesh is looked up in the worker, which waits for it there.
-        futures = {pool.submit(_attempt, scene, meshes, n, layout, force, None): n
+        futures = {pool.submit(_attempt, scene, meshes, n, layout, force): n
                    for n in sorted(meshes, reverse=True)}
         for count, future in enumerate(as_completed(futures), start=1):
             outcome = future.result()
@@ -199,12 +199,11 @@ def _independent(
     return dict(sorted(outcomes.items()))
 
 
-def _attempt(scene: Scene, meshes: Mapping[int, Path], n: int, layout: Layout, force: bool,
-            warm: WarmStart | None) -> LevelOutcome:
-    """One level run alone, its failure classified."""
+def _attempt(scene: Scene, meshes: Mapping[int, Path], n: int, layout: Layout, force: bool) -> LevelOutcome:
+    """One level run alone from the case's own start, its failure classified."""
     start = time.perf_counter()
     try:
-        return LevelOutcome.of_run(run_level(scene, meshes[n], n, layout, force, warm))
+        return LevelOutcome.of_run(run_level(scene, meshes[n], n, layout, force))
     except RunError as exc:
         return LevelOutcome.of_failure(n, exc, layout.failed_dir(scene.name, n), time.perf_counter() - start)
 
