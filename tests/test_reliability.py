@@ -511,6 +511,42 @@ def test_meshing_in_this_process_leaves_the_signal_handlers_in_force(tmp_path):
         assert all(catches(os.getpid(), signum) for signum in (signal.SIGTERM, signal.SIGHUP, signal.SIGINT))
 
 
+MESH_THEN_BROKEN_PIPE = """
+import os, sys, threading
+from pathlib import Path
+from harness.layout import Layout
+from harness.mesh import build_mesh
+from harness.scene import load_scene
+
+scene = load_scene(Path(sys.argv[1]))
+layout = Layout(results=Path(sys.argv[2]))
+where = sys.argv[3]
+mesh = lambda: build_mesh(scene.geometry, 2, layout.meshes_dir(scene.name))
+if where == "thread":
+    worker = threading.Thread(target=mesh)
+    worker.start()
+    worker.join()
+else:
+    mesh()
+read, write = os.pipe()
+os.close(read)
+try:
+    os.write(write, b"x")
+except BrokenPipeError:
+    print("BrokenPipeError")
+"""
+
+
+@pytest.mark.parametrize("where", ["main", "thread"])
+def test_a_write_to_a_closed_pipe_after_meshing_raises_instead_of_killing(where, tmp_path):
+    """gmsh.initialize() also sets SIGPIPE to its default: a later write to a closed pipe
+    killed the process without a word (exit 141; it ended a whole pytest session once a
+    chain had meshed in a thread). Python ignores SIGPIPE and raises BrokenPipeError."""
+    done = subprocess.run([sys.executable, "-c", MESH_THEN_BROKEN_PIPE, str(PAPER), str(tmp_path), where],
+                          cwd=REPO, capture_output=True, text=True, timeout=120)
+    assert done.returncode == 0 and done.stdout.strip() == "BrokenPipeError", (done.returncode, done.stderr[-300:])
+
+
 def test_the_memory_guard_counts_per_solver():
     """A PETSc Krylov method with an iterative preconditioner stores no factor: measured at
     3D h = 1/16 (the field split of results/solvers/, 1,235 MiB for 93,925 dofs) and 2D
