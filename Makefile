@@ -13,6 +13,14 @@ CLUSTER_FLAGS ?=
 convergence: $(STAMP) freefem
 	$(PY) -m harness convergence cases/paper.toml
 
+# The paper's block in 3D on both branches, h = 1/2 ... 1/32 against h = 1/32 (PETSc's geometric
+# multigrid at the finest levels; ~4 min and ~4 GB each), into results/paper3d/ and
+# results/paper3d_pressed/.
+.PHONY: paper3d
+paper3d: $(STAMP) freefem
+	$(PY) -m harness convergence cases/paper3d.toml
+	$(PY) -m harness convergence cases/paper3d.toml --set scene.coarsest_guess=pressed --set scene.name=paper3d_pressed
+
 # A convergence study of every scene in cases/ and one table of their unknowns, dofs,
 # times and slopes (results/scenes/summary.csv).
 scenes: $(STAMP) freefem
@@ -95,7 +103,7 @@ bench: $(STAMP) freefem
 	$(PY) -m harness solvers $(SOLVERS_FLAGS)
 
 # The solver table alone (issue 20): MUMPS_seq, UMFPACK64, PETSc field split + AMG, PETSc MUMPS
-# with and without BLR, on the paper scene at h = 1/64 and its 3D block at h = 1/16 (medians of
+# with and without BLR, PETSc geometric multigrid, on the paper scene at h = 1/64 and its 3D block at h = 1/16 (medians of
 # 3), into results/solvers/. Larger points: SOLVERS_FLAGS="--points paper:256,paper3d:32".
 # Then the direct solvers at 2D h = 1/256 (results/solvers/h256/), and the rank table: the paper scene at h = 1/64 on 1, 2, 4, 8 MPI ranks (GMRES iterations
 # of one-level Schwarz; oversubscribed past the cores), results/solvers/ranks.csv.
@@ -104,6 +112,17 @@ solvers: $(STAMP) freefem
 	$(PY) -m harness solvers $(SOLVERS_FLAGS)
 	$(PY) -m harness solvers --points paper:256 --only mumps,petsc-mumps,petsc-mumps-blr --results results/solvers/h256
 	$(PY) -m harness solvers --ranks 1,2,4,8
+	$(MAKE) multigrid
+
+# Geometric multigrid (issue 20): against MUMPS_seq and PETSc's MUMPS in one run at 2D h = 1/64
+# and 3D h = 1/16 (results/solvers/multigrid/), then alone where no factorisation fits: 3D
+# h = 1/32 (702,405 dofs, medians of 3) and 2D h = 1/512 (4.2 M dofs, once), into
+# results/solvers/h32/ and results/solvers/h512/ (~20 min).
+.PHONY: multigrid
+multigrid: $(STAMP) freefem
+	$(PY) -m harness solvers --points paper:64,paper3d:16 --only mumps,petsc-mumps,petsc-mg --results results/solvers/multigrid
+	$(PY) -m harness solvers --points paper3d:32 --only petsc-mg --results results/solvers/h32
+	$(PY) -m harness solvers --points paper:512 --only petsc-mg --repeats 1 --results results/solvers/h512
 
 # Past one machine (issue 15): the paper scene solved on 1 and 2 MPI ranks, in 2D and 3D
 # (time, Krylov iterations, per-rank memory, agreement), and the stress suite in this

@@ -75,6 +75,9 @@ struct Context {
   std::vector<PetscInt> dirichlet;   // rows of the last operator made identity rows
   std::vector<PetscInt> seed;        // the dofs of the contact nodes (Gamma_3)
   IS zone = nullptr;                 // seed grown by -contact_zone_layers layers of the matrix graph
+  std::vector<Mat> nodal;            // petscAddLevel: nodal (scalar P1) interpolations, finest first
+  bool levelsAttached = false;
+  bool oneLevel = false;             // a multigrid without coarser meshes: no smoother is read
   MatNullSpace rigid = nullptr;
   PetscInt size = 0;
   bool checkedOptions = false;
@@ -252,6 +255,102 @@ PetscErrorCode attachZone(Context &c, PC pc) {
   return 0;
 }
 
+// Geometric multigrid (-pc_type mg). The script hands over the nodal interpolations of a
+// family of nested meshes (petscAddLevel, finest first): P maps the nodal values of the
+// next coarser mesh to this one's, the same for every field since all are P1. The
+// Newton vector's interpolation is then block diagonal over the fields, each block P
+// itself or, for the displacement, P acting on every component (its dofs interleaved per
+// node). Coarse operators are Galerkin products R A P of the Newton tangent, so the
+// coarse levels see the contact state and the conductances' coupling of the fine one.
+// On the finest level the Dirichlet rows of P are zero: a coarse correction must not move
+// a value the increment keeps at zero.
+PetscErrorCode fieldInterpolation(const Context &c, Mat nodal, PetscInt fineNodes, bool finest, Mat *out) {
+  PetscInt rows, cols;
+  PetscCall(MatGetSize(nodal, &rows, &cols));
+  std::vector<PetscInt> blocks;
+  PetscInt fineSize = 0, coarseSize = 0;
+  for (IS is : c.fields) {
+    PetscInt bs;
+    PetscCall(ISGetBlockSize(is, &bs));
+    blocks.push_back(bs);
+    fineSize += bs * rows;
+    coarseSize += bs * cols;
+  }
+  if (rows != fineNodes) {
+    lastMessage = "petscAddLevel: an interpolation onto " + std::to_string(rows) + " nodes where the level has " +
+                  std::to_string(fineNodes) + " (multigrid needs every field P1 on nested meshes)";
+    return PETSC_ERR_ARG_SIZ;
+  }
+  std::vector<char> fixed(fineSize, 0);
+  if (finest) for (PetscInt i : c.dirichlet) fixed[i] = 1;
+  std::vector<PetscInt> ptr(1, 0), idx;
+  std::vector<PetscScalar> val;
+  PetscInt fineOffset = 0, coarseOffset = 0;
+  for (PetscInt bs : blocks) {   // rows in order: a field's dofs are (node, component) node-major
+    for (PetscInt i = 0; i < rows; ++i) {
+      PetscInt count;
+      const PetscInt *cj;
+      const PetscScalar *cv;
+      PetscCall(MatGetRow(nodal, i, &count, &cj, &cv));
+      for (PetscInt comp = 0; comp < bs; ++comp) {
+        if (!fixed[fineOffset + i * bs + comp])
+          for (PetscInt k = 0; k < count; ++k) {
+            if (cv[k] == 0.0) continue;
+            idx.push_back(coarseOffset + cj[k] * bs + comp);
+            val.push_back(cv[k]);
+          }
+        ptr.push_back((PetscInt)idx.size());
+      }
+      PetscCall(MatRestoreRow(nodal, i, &count, &cj, &cv));
+    }
+    fineOffset += bs * rows;
+    coarseOffset += bs * cols;
+  }
+  PetscCall(MatCreate(PETSC_COMM_SELF, out));
+  PetscCall(MatSetSizes(*out, fineSize, coarseSize, fineSize, coarseSize));
+  PetscCall(MatSetType(*out, MATSEQAIJ));
+  PetscCall(MatSeqAIJSetPreallocationCSR(*out, ptr.data(), idx.data(), val.data()));
+  return 0;
+}
+
+// The levels on a PCMG (-pc_type mg, or one of a composite's), from the nodal interpolations.
+PetscErrorCode attachLevels(Context &c, PC pc) {
+  PetscBool mg = PETSC_FALSE;
+  PetscCall(PetscObjectTypeCompare((PetscObject)pc, PCMG, &mg));
+  if (!mg) return 0;
+  // No coarser mesh (the coarsest level of a study): one level, the coarse solver on this one.
+  PetscInt levels = (PetscInt)c.nodal.size() + 1;
+  PetscCall(PCMGSetLevels(pc, levels, nullptr));
+  PetscInt nodes = 0;
+  for (IS is : c.fields) {   // the finest level's nodes: any field's size over its block size
+    PetscInt n, bs;
+    PetscCall(ISGetSize(is, &n));
+    PetscCall(ISGetBlockSize(is, &bs));
+    nodes = n / bs;
+    break;
+  }
+  for (size_t k = 0; k < c.nodal.size(); ++k) {
+    Mat p;
+    PetscCall(fieldInterpolation(c, c.nodal[k], nodes, k == 0, &p));
+    PetscCall(PCMGSetInterpolation(pc, levels - 1 - (PetscInt)k, p));
+    PetscCall(MatDestroy(&p));
+    PetscCall(MatGetSize(c.nodal[k], nullptr, &nodes));
+  }
+  PetscCall(PCMGSetGalerkin(pc, PC_MG_GALERKIN_BOTH));
+  std::cout << "multigrid: " << levels << " levels" << std::endl;
+  PetscCall(PCSetFromOptions(pc));
+  c.oneLevel = levels == 1;
+  if (levels > 1) return 0;
+  // One level (no coarser mesh): PCMG names its only solver mg_levels_0_; it is the coarse
+  // solve, so it takes -mg_coarse_ options, as it would below a finer level.
+  KSP coarse;
+  const char *prefix = nullptr;
+  PetscCall(PCMGGetCoarseSolve(pc, &coarse));
+  PetscCall(PCGetOptionsPrefix(pc, &prefix));
+  PetscCall(KSPSetOptionsPrefix(coarse, (std::string(prefix ? prefix : "") + "mg_coarse_").c_str()));
+  return KSPSetFromOptions(coarse);
+}
+
 // "-pc_type gamg -mat_mumps_icntl_14 -50" with prefix p_: "-p_pc_type gamg -p_mat_mumps_icntl_14 -50"
 // (an option is a word starting with '-' and a letter; a negative number is a value).
 std::string prefixed(const std::string &options, const std::string &prefix) {
@@ -328,8 +427,9 @@ PetscErrorCode unusedOptions(const Context &c, std::string *unused) {
   PetscCall(PetscOptionsLeftGet(nullptr, &left, &names, &values));
   for (PetscInt i = 0; i < left; ++i) {
     std::string name = names[i];
-    if (name.compare(0, c.prefix.size(), c.prefix) == 0)
-      *unused += std::string(unused->empty() ? "" : ", ") + "-" + name.substr(c.prefix.size());
+    if (name.compare(0, c.prefix.size(), c.prefix) != 0) continue;
+    if (c.oneLevel && name.compare(c.prefix.size(), 10, "mg_levels_") == 0) continue;   // no level to smooth
+    *unused += std::string(unused->empty() ? "" : ", ") + "-" + name.substr(c.prefix.size());
   }
   PetscCall(PetscOptionsLeftRestore(nullptr, &left, &names, &values));
   return 0;
@@ -453,6 +553,12 @@ long krylov(Context *c, KN<double> *b, KN<double> *x, double rtol, long reuse) {
     TRY(KSPGetPC(c->ksp, &pc), "contact zone");
     TRY(eachLeaf(*c, pc, attachZone), "contact zone");
   }
+  if (!c->levelsAttached) {
+    PC pc;
+    TRY(KSPGetPC(c->ksp, &pc), "multigrid levels");
+    TRY(eachLeaf(*c, pc, attachLevels), "multigrid levels");
+    c->levelsAttached = true;
+  }
   TRY(KSPSetReusePreconditioner(c->ksp, rebuild ? PETSC_FALSE : PETSC_TRUE), "reuse");
   TRY(KSPSetTolerances(c->ksp, rtol, 0.0, PETSC_DEFAULT, PETSC_DEFAULT), "tolerances");
   double t0 = now();
@@ -522,6 +628,27 @@ long stats(long const &id, KN<double> *const &out) {
   return 0;
 }
 
+// One more coarse level for -pc_type mg: the nodal interpolation from the next coarser
+// mesh of a nested family onto the last level given (the Newton mesh first).
+long addLevel(long const &id, Matrice_Creuse<double> *const &P) {
+  Context *c = context(id);
+  if (!c) return fail(PETSC_ERR_ARG_OUTOFRANGE, "level");
+  MatriceMorse<double> *a = P->A ? dynamic_cast<MatriceMorse<double> *>(&*P->A) : nullptr;
+  if (!a) {
+    lastMessage = "the interpolation is not a sparse matrix";
+    return fail(PETSC_ERR_ARG_WRONG, "level");
+  }
+  a->CSR();
+  std::vector<PetscInt> rows(a->p, a->p + a->n + 1), cols(a->j, a->j + a->nnz);
+  Mat m;
+  TRY(MatCreate(PETSC_COMM_SELF, &m), "level");
+  TRY(MatSetSizes(m, a->n, a->m, a->n, a->m), "level");
+  TRY(MatSetType(m, MATSEQAIJ), "level");
+  TRY(MatSeqAIJSetPreallocationCSR(m, rows.data(), cols.data(), a->aij), "level");
+  c->nodal.push_back(m);
+  return (long)c->nodal.size();
+}
+
 long destroy(long const &id) {
   Context *c = context(id);
   if (!c) return 0;
@@ -532,6 +659,7 @@ long destroy(long const &id) {
   for (IS &is : c->fields) ISDestroy(&is);
   MatNullSpaceDestroy(&c->rigid);
   ISDestroy(&c->zone);
+  for (Mat &m : c->nodal) MatDestroy(&m);
   delete c;
   contexts[id] = nullptr;
   return 0;
@@ -555,6 +683,7 @@ static void init() {
              new OneOperator7_<long, long, Matrice_Creuse<double> *, Matrice_Creuse<double> *, KN<double> *,
                                 KN<double> *, double, long>(solveSum));
   Global.Add("petscStats", "(", new OneOperator2_<long, long, KN<double> *>(stats));
+  Global.Add("petscAddLevel", "(", new OneOperator2_<long, long, Matrice_Creuse<double> *>(addLevel));
   Global.Add("petscDestroy", "(", new OneOperator1_<long, long>(destroy));
   ff_atend(finish);
 }

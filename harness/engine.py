@@ -30,7 +30,7 @@ from harness import freefem, signals
 from harness.contract import Failure
 from harness.errors import EnvironmentFault, HarnessError, MeshError, RunError
 from harness.layout import Layout
-from harness.mesh import build_graded_mesh, build_mesh, remove_partial_meshes
+from harness.mesh import GMSH, build_graded_mesh, build_mesh, remove_partial_meshes
 from harness.record import RunRecord
 from harness.run import LevelRun, RunResult, WarmStart, read_record, run_level
 from harness.scene import Scene
@@ -127,7 +127,7 @@ class InlineMeshes(Mapping[int, Path]):
     seconds each took (gmsh and the checks) in `seconds`. gmsh is one library state per process
     and not thread-safe: meshes of chains run side by side in threads are made one at a time."""
 
-    _gmsh = threading.Lock()  # per process, as gmsh's own state is
+    _gmsh = GMSH  # per process, as gmsh's own state is
 
     def __init__(self, scene: Scene, levels: Sequence[int], layout: Layout, grading: float = 1.0) -> None:
         self._scene, self._levels, self._layout, self._grading = scene, sorted(set(levels)), layout, grading

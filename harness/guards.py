@@ -33,6 +33,12 @@ DOFS_3D_MEASURED = 93_925
 # h = 1/64 425 MiB for 66,820 dofs (6.7 kB: the matrix is held three times, FreeFEM's K and
 # K + T and PETSc's copy, beside the AMG hierarchies). Rounded up.
 BYTES_PER_DOF_ITERATIVE = {2: 7e3, 3: 14.5e3}
+# Geometric multigrid (-pc_type mg over the nested meshes, run.multigrid_levels): K and the
+# tangent in FreeFEM, PETSc's copy, the ILU(0) smoother of the finest level (the matrix's
+# pattern again) and the Galerkin levels (1/8 or 1/4 of it each). Measured (VmHWM):
+# 2D h = 1/64 235 MiB for 66,820 dofs (3.69 kB), 1/128 743 MiB for 264,708 (2.94 kB);
+# 3D h = 1/16 573 MiB for 93,925 (6.25 kB), 1/32 4,040 MiB for 702,405 (6.03 kB). The largest, rounded up.
+BYTES_PER_DOF_MULTIGRID = {2: 3.7e3, 3: 6.3e3}
 # MSH 2.2 text per mesh node: a node line (~60 characters) and two triangle lines (~30
 # each); in 3D, six tetrahedron lines (~40 each).
 MSH_BYTES_PER_NODE = {2: 150, 3: 320}
@@ -65,14 +71,16 @@ def mesh_nodes(width: float, height: float, n: int, element: str = "P1", depth: 
 
 
 def memory_estimate(width: float, height: float, n: int, effects: tuple[str, ...], element: str = "P1",
-                    depth: float | None = None, factorises: bool = True) -> tuple[int, float]:
+                    depth: float | None = None, factorises: bool = True, multigrid: bool = False) -> tuple[int, float]:
     """(dofs, peak bytes) of one level's FreeFEM run; 3D when `depth` is given; `factorises`:
     whether the linear solver factorises the Newton matrix (every solver but a PETSc Krylov
-    method with an iterative preconditioner)."""
+    method with an iterative preconditioner); `multigrid`: whether that preconditioner is a
+    geometric multigrid."""
     if not factorises:
         dimension = 2 if depth is None else 3
         dofs = unknowns_per_node(effects, dimension) * mesh_nodes(width, height, n, element, depth)
-        return dofs, BYTES_PER_DOF_ITERATIVE[dimension] * dofs
+        per_dof = (BYTES_PER_DOF_MULTIGRID if multigrid else BYTES_PER_DOF_ITERATIVE)[dimension]
+        return dofs, per_dof * dofs
     if depth is None:
         dofs = unknowns_per_node(effects) * mesh_nodes(width, height, n, element)
         return dofs, BASE_BYTES + BYTES_PER_DOF * dofs
@@ -102,14 +110,14 @@ def available_memory() -> float:
 
 def check_memory(width: float, height: float, levels: tuple[int, ...], effects: tuple[str, ...],
                  element: str = "P1", available: float | None = None, depth: float | None = None,
-                 factorises: bool = True) -> None:
+                 factorises: bool = True, multigrid: bool = False) -> None:
     """Refuse, before meshing, a level set whose finest level does not fit in the memory left.
     The next finer-but-one level runs alongside it (the pipelined chain starts the finest
     while its coarser level runs; a parallel study runs two at once), so its peak counts too."""
     finest, *rest = sorted(set(levels), reverse=True)
-    dofs, need = memory_estimate(width, height, finest, effects, element, depth, factorises)
+    dofs, need = memory_estimate(width, height, finest, effects, element, depth, factorises, multigrid)
     if rest:
-        need += memory_estimate(width, height, rest[0], effects, element, depth, factorises)[1]
+        need += memory_estimate(width, height, rest[0], effects, element, depth, factorises, multigrid)[1]
     have = available_memory() if available is None else available
     if need > have:
         raise EnvironmentFault(

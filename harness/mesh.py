@@ -7,6 +7,7 @@ gmsh keeps global state and is not thread-safe: call `build_mesh` from one threa
 from __future__ import annotations
 
 import os
+import threading
 from dataclasses import replace
 from pathlib import Path
 from typing import Sequence
@@ -27,11 +28,29 @@ from harness import box_mesh, signals
 # gmsh's transfinite arrangement that cuts each cell along the requested diagonal.
 ARRANGEMENT = {"SW-NE": "Right", "NW-SE": "Left"}
 BODY_LABEL = 1
+# gmsh's state is per process and not thread-safe: whoever meshes from a thread holds this.
+GMSH = threading.Lock()
 
 
 def mesh_path(directory: Path, n: int) -> Path:
     # ".msh" alone would be ambiguous with FreeFEM's own format; the name says which one.
     return directory / f"mesh_n{n}.msh"
+
+
+def coarser_levels(n: int, count: int, coarsest: int = 2) -> list[int]:
+    """Up to `count` levels below n, each half the one above, none below `coarsest`: the
+    nested family a geometric multigrid at level n coarsens through."""
+    levels: list[int] = []
+    while len(levels) < count and n % 2 == 0 and n // 2 >= max(coarsest, 1):
+        n //= 2
+        levels.append(n)
+    return levels
+
+
+def coarser_meshes(geometry: Geometry | Box, n: int, count: int, coarsest: int, directory: Path) -> list[Path]:
+    """The meshes of `coarser_levels(n, count, coarsest)`, finest first, made where missing."""
+    with GMSH:
+        return [build_mesh(geometry, m, directory).path for m in coarser_levels(n, count, coarsest)]
 
 
 def build_mesh(geometry: Geometry | Box, n: int, directory: Path) -> MeshSummary:

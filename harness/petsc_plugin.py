@@ -37,20 +37,43 @@ def field_split_options(fields: tuple[str, ...]) -> str:
     return f"-ksp_type gmres -pc_type fieldsplit -pc_fieldsplit_type multiplicative {blocks}"
 
 
+# GMRES (flexible: the smoothers are Krylov methods) preconditioned by one V-cycle of
+# geometric multigrid over the scene's nested meshes (run.multigrid_levels coarser ones),
+# the levels' operators Galerkin products of the Newton tangent; on each level but the
+# coarsest three GMRES iterations with ILU(0) as the smoother, MUMPS's LU on the coarsest.
+# Chosen by measurement (docs/solvers.md): 3D h = 1/32 in 4 Newton steps of 3-10 Krylov
+# iterations each, in 4.1 GB where a factorisation needs ~35.
+MULTIGRID = ("-ksp_type fgmres -pc_type mg -mg_levels_ksp_type gmres -mg_levels_ksp_max_it 3 "
+             "-mg_levels_pc_type ilu -mg_coarse_pc_type lu -mg_coarse_pc_factor_mat_solver_type mumps")
+
+
+def option_pairs(options: str) -> list[tuple[str, str]]:
+    words = options.split()
+    return list(zip(words, words[1:]))
+
+
+def multigrid(options: str) -> bool:
+    """Whether PETSc's options ask for geometric multigrid (-pc_type mg, on the Newton
+    system or one of its blocks): the run then needs the coarser meshes."""
+    return any(a.endswith("pc_type") and b == "mg" for a, b in option_pairs(options))
+
+
 def factorising(options: str) -> bool:
     """Whether PETSc's options factorise the matrix or a block of it (any -..._pc_type lu or
-    cholesky: for the memory guard, a block's factor counts as the whole's, erring high)."""
-    words = options.split()
-    return any(a.endswith("pc_type") and b in ("lu", "cholesky") for a, b in zip(words, words[1:]))
+    cholesky: for the memory guard, a block's factor counts as the whole's, erring high). A
+    multigrid's coarse solve (-mg_...) factorises only the coarsest level: not counted."""
+    return any(a.endswith("pc_type") and b in ("lu", "cholesky") and not a.startswith("-mg_")
+               for a, b in option_pairs(options))
 
 
 def default_options(dimension: int, fields: tuple[str, ...]) -> str:
     """run.petsc_options when blank, chosen by measurement (docs/solvers.md, results/solvers/):
-    MUMPS's LU in 2D and 3D. The field split with AMG needs 30-300 Krylov iterations a
-    Newton step once the electric contact conductance couples u_nu to phi with its gain
-    k_e/eps_e, and took 4x MUMPS's time at 3D h = 1/16. `dimension` and `fields` are the
-    seams for choices of their own."""
-    return MUMPS_LU
+    geometric multigrid in 3D, MUMPS's LU in 2D. The field split with AMG needs 30-300
+    Krylov iterations a Newton step once the electric contact conductance couples u_nu to
+    phi with its gain k_e/eps_e; multigrid on the whole coupled system, its coarse levels
+    Galerkin products of the tangent, sees that coupling on every level. `fields` is the
+    seam for choices of their own."""
+    return MULTIGRID if dimension == 3 else MUMPS_LU
 
 
 def flags(source: Path, out: Path) -> list[str]:

@@ -19,6 +19,7 @@ from harness.errors import EnvironmentFault, RunError, SceneError
 from harness.faults import disk_full, space_for
 from harness.signals import CHILDREN, Interrupted
 from harness.layout import Layout
+from harness.mesh import coarser_meshes
 from harness.record import RunRecord, read_run_json, write_run_json
 from harness.scene import Scene
 from harness.script import main_script
@@ -221,7 +222,7 @@ def cached_result(directory: Path, key: str, n: int) -> RunResult | None:
 
 
 # Options that name files: their content is keyed (mesh, start), not where they are.
-PATH_OPTIONS = frozenset({"-mesh", "-out", "-init.mesh", "-init.state"})
+PATH_OPTIONS = frozenset({"-mesh", "-out", "-init.mesh", "-init.state", "-mg.mesh"})
 
 
 def keyed_options(options: list[str]) -> tuple[str, ...]:
@@ -255,6 +256,9 @@ def solver_inputs(
     options += freefem.scene_options(scene.solver_parameters(), guess)
     if petsc:
         options += ["-run.petsc_options", scene.petsc_options]
+        for coarse in coarser_meshes(scene.geometry, n, scene.multigrid_levels, scene.sections.run.multigrid_coarsest,
+                                     mesh.resolve().parent):
+            options += ["-mg.mesh", str(coarse)]
     if start:
         state = str(start.state) if str(start.state) == "-" else str(start.state.resolve())
         options += ["-init.mesh", str(start.mesh.resolve()), "-init.state", state]

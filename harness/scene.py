@@ -11,7 +11,7 @@ from pathlib import Path
 from typing import Any, Iterable
 
 from harness.errors import SceneError
-from harness.petsc_plugin import default_options, factorising
+from harness.petsc_plugin import default_options, factorising, multigrid
 from harness.box import Box, parse_box
 from harness.schema import EFFECTS, REQUIRED, SCHEMA, SOLVER_SECTIONS, Key, effect_of, geometry_keys
 from harness.sections import sections_of
@@ -81,6 +81,11 @@ class Scene:
         return self.sections.run.petsc_options.strip() or default_options(self.dimension, fields)
 
     @property
+    def multigrid_levels(self) -> int:
+        """Coarser meshes a geometric multigrid gets (0: the options ask for none)."""
+        return self.sections.run.multigrid_levels if self.linear_solver == "petsc" and multigrid(self.petsc_options) else 0
+
+    @property
     def factorises(self) -> bool:
         """Whether the linear solver factorises the Newton matrix (memory: a factor's fill)."""
         return self.linear_solver != "petsc" or factorising(self.petsc_options)
@@ -119,6 +124,8 @@ class Scene:
             "element": self.element,
             "linear_solver": self.linear_solver,
             **({"petsc_options": self.petsc_options} if self.linear_solver == "petsc" else {}),
+            **({"multigrid": [self.multigrid_levels, self.sections.run.multigrid_coarsest]}
+               if self.multigrid_levels else {}),
             "effects": list(self.effects),
             "geometry": copy.deepcopy(self.table["geometry"]),
             **self.solver_parameters(),

@@ -99,6 +99,8 @@ EFFECTS: dict[str, tuple[str, ...]] = {
 DATA_EFFECT: dict[tuple[str, str | None], str] = {
     ("contact", None): "contact",
     ("contact", "S"): "friction",
+    ("contact", "friction_law"): "friction",
+    ("contact", "mu"): "friction",
     ("electric_contact", None): "electric_contact",
     ("thermal_contact", None): "thermal_contact",
     ("loads", "surface_charge"): "piezoelectric",
@@ -164,6 +166,10 @@ SCHEMA: dict[str, dict[str, Key]] = {
         "c_nu": Key(float, check=positive),
         "gap": Key(float),
         "S": Key(float, check=nonnegative),
+        # The slip bound (freefem/contact.idp, docs/laws.md): tresca, R = S; coulomb,
+        # R = mu c_nu (u_nu - g)_+, mu times the normal pressure (S is then not used).
+        "friction_law": Key(str, "tresca", one_of("tresca", "coulomb")),
+        "mu": Key(float, 0.0, nonnegative),
     },
     "electric_contact": {
         "k_e": Key(float, check=nonnegative),
@@ -190,6 +196,14 @@ SCHEMA: dict[str, dict[str, Key]] = {
         # -pc_type fieldsplit ..."); blank: the measured default of the scene's dimension
         # (harness/petsc_plugin.py DEFAULT_OPTIONS, docs/solvers.md).
         "petsc_options": Key(str, "", petsc_option_words),
+        # With a PETSc geometric multigrid (-pc_type mg in run.petsc_options): how many coarser
+        # meshes of the scene's nested family, each halving n, become its levels, the coarsest
+        # no coarser than n = multigrid_coarsest (a level with none is solved by the coarse
+        # solver alone). Below n = 8 a coarse mesh misses where Gamma_3 opens: the paper's
+        # scene at n = 4 over n = 2 took 88-131 Krylov iterations a Newton step, against 5-13
+        # from n = 16 to 128 (docs/solvers.md). The harness meshes them (harness/mesh.py).
+        "multigrid_levels": Key(int, 4, nonnegative),
+        "multigrid_coarsest": Key(int, 8, positive),
         # MPI ranks of one solve (freefem/parallel.idp, harness/launcher.py); 1: the sequential scheme.
         "ranks": Key(int, 1, positive),
         # How ranks are started; {ranks} is replaced. On a SLURM cluster: "srun -n {ranks} FreeFem++-mpi".

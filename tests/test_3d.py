@@ -179,9 +179,14 @@ def test_a_coupling_outside_class_6mm_is_refused_in_3d_only(tmp_path, dimension,
 
     material = variant(tmp_path, "C14", ("[[166e9, 77e9, 78e9, 0, 0, 0]", "[[166e9, 77e9, 78e9, 1e9, 0, 0]"),
                        ("[0, 0, 0, 43e9, 0, 0],", "[1e9, 0, 0, 43e9, 0, 0],"))
+    # The 3D check is the law's (constitutive.idp calls material.idp's checkClass6mm through
+    # dimension.idp's only3: the dimension enters there only), so the script includes the
+    # pieces in the scheme's order up to the law.
     script = tmp_path / "law.edp"
-    script.write_text(f"macro DIMENSION {dimension} //\ninclude \"{material.resolve()}\"\n"
-                      f"include \"{(FREEFEM / 'material.idp').resolve()}\"\ncout << \"ok\" << endl;\n")
+    pieces = [material.resolve(), *(FREEFEM / name for name in ("material.idp", "contract.idp", "dimension.idp",
+                                                                 "constitutive.idp"))]
+    script.write_text(f"macro DIMENSION {dimension} //\n" + "".join(f'include "{Path(p).resolve()}"\n' for p in pieces)
+                      + 'cout << "ok" << endl;\n')
     outcome = invoke(command(script, []), tmp_path, timeout_s=60)
     out = (tmp_path / "stdout.txt").read_text()
     errors = [line for line in out.splitlines() if line.startswith("error:")]

@@ -219,6 +219,10 @@ def test_manufactured_errors_converge_at_the_p1_rates(coarse_studies, case, norm
     """Slopes over h = 1/4 ... 1/16 inside harness/verify.py's BANDS (2 -/+ 0.1 in L2,
     1 -/+ 0.05 in the H1 seminorm), for every field, and a straight log-log line."""
     _, errors = coarse_studies
+    assert_p1_rates(errors, case, norm)
+
+
+def assert_p1_rates(errors: pd.DataFrame, case: str, norm: str) -> None:
     rates = mms_rates(errors)
     selected = rates[(rates["case"] == case) & (rates["norm"] == norm)]
     assert set(selected["field"]) == {"u", "phi", "theta"}
@@ -263,14 +267,14 @@ MUTATIONS = {
                                "macro DT3(th) (p3 * Theta * (th))"),
     "shear piezoelectric sign (D1)": ("bulk", "constitutive.idp", "macro DU1(u) (e15 * eps5(u))",
                                       "macro DU1(u) (-e15 * eps5(u))"),
-    "penalty factor": ("contact", "forms.idp", "cnu * pos(gapS(u)) * vnu(v)",
-                       "0.5 * cnu * pos(gapS(u)) * vnu(v)"),
-    "Tresca bound": ("contact", "forms.idp", "projScale(wNorm(u), slipBound) * cnu * U * tauDot(u, v)",
-                     "projScale(wNorm(u), 0.5 * slipBound) * cnu * U * tauDot(u, v)"),
-    "electric conductance sign": ("contact", "forms.idp", "(elecFlux(gapS(u), ph) * vp",
-                                  "(-elecFlux(gapS(u), ph) * vp"),
-    "thermal conductance factor": ("contact", "forms.idp", "(heatFlux(gapS(u), th) * vt",
-                                   "(0.5 * heatFlux(gapS(u), th) * vt"),
+    "penalty factor": ("contact", "forms.idp", "(normalPressure(gapS(u)) * vnu(v)",
+                       "(0.5 * normalPressure(gapS(u)) * vnu(v)"),
+    "Tresca bound": ("contact", "forms.idp", "projScale(wNorm(u), frictionBound(u)) * cnu * U * tauDot(u, v)",
+                     "projScale(wNorm(u), 0.5 * frictionBound(u)) * cnu * U * tauDot(u, v)"),
+    "electric conductance sign": ("contact", "forms.idp", "(electricFlux(gapS(u), Phi * ph - phif) * vp",
+                                  "(-electricFlux(gapS(u), Phi * ph - phif) * vp"),
+    "thermal conductance factor": ("contact", "forms.idp", "(thermalFlux(gapS(u), Theta * th - thetaf) * vt",
+                                   "(0.5 * thermalFlux(gapS(u), Theta * th - thetaf) * vt"),
 }
 
 
@@ -289,4 +293,52 @@ def test_a_wrong_term_in_the_scheme_fails_the_manufactured_rates(tmp_path, mutat
     (scripts / name).write_text(text.replace(old, new, 1))
     layout = Layout(results=tmp_path / "results", freefem=scripts)
     rates = mms_rates(mms_errors(load_scene(MMS_CASES[case]), (8, 16), layout, jobs=2, progress=quiet).assign(case=case))
+    assert not rates["within_band"].all(), rates.to_string()
+
+
+# Coulomb friction (issue 23, docs/laws.md): the contact case with the slip bound mu c_nu (s)_+.
+COULOMB = REPO / "cases" / "mms" / "contact_coulomb.toml"
+
+
+def test_the_coulomb_case_is_open_slipping_and_sticking_on_gamma3():
+    """The exact state against Coulomb's bound mu p(s), p = c_nu (s)_+: no friction where open,
+    |c_nu u_tau| above mu p on a closed part (slip) and below it on another (stick)."""
+    scene = load_scene(COULOMB)
+    c = scene.sections.contact
+    assert c.friction_law == "coulomb" and c.mu > 0
+    exact = numeric({k: v for k, v in vars(parse_exact(scene.manufactured)).items()})
+    x = np.linspace(1, 3, 2001)
+    y = np.zeros_like(x)
+    s = -exact["u2"](x, y) - c.gap
+    bound = c.mu * c.c_nu * np.maximum(s, 0.0)
+    shear = c.c_nu * np.abs(exact["u1"](x, y))
+    closed = s > 0
+    assert (~closed).any()
+    assert (closed & (shear > bound)).any() and (closed & (shear < bound)).any()
+
+
+@pytest.fixture(scope="module")
+def coulomb_study(tmp_path_factory):
+    layout = Layout(results=tmp_path_factory.mktemp("coulomb"))
+    return mms_errors(load_scene(COULOMB), (4, 8, 16), layout, jobs=2, progress=quiet).assign(case="coulomb")
+
+
+@pytest.mark.parametrize("norm", ["L2", "H1"])
+def test_the_coulomb_case_converges_at_the_p1_rates(coulomb_study, norm):
+    """As the Tresca case: every field inside BANDS over h = 1/4 ... 1/16 (measured over 1/4
+    ... 1/32: L2 1.96-1.99, H1 1.00-1.01, standard errors <= 0.011)."""
+    assert_p1_rates(coulomb_study, "coulomb", norm)
+
+
+def test_a_halved_coulomb_bound_in_the_residual_fails_the_manufactured_rates(tmp_path):
+    """Mutation, as MUTATIONS above: the residual's slip bound halved (forms.idp), the
+    manufactured loads left with the law's own (mms.idp): the error stops converging."""
+    scripts = tmp_path / "freefem"
+    shutil.copytree(REPO / "freefem", scripts)
+    old, new = MUTATIONS["Tresca bound"][2:]
+    text = (scripts / "forms.idp").read_text()
+    assert old in text
+    (scripts / "forms.idp").write_text(text.replace(old, new, 1))
+    layout = Layout(results=tmp_path / "results", freefem=scripts)
+    rates = mms_rates(mms_errors(load_scene(COULOMB), (8, 16), layout, jobs=2, progress=quiet).assign(case="coulomb"))
     assert not rates["within_band"].all(), rates.to_string()

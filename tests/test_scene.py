@@ -35,7 +35,8 @@ def test_the_paper_case_loads_with_its_values(paper_case):
 def test_solver_parameters_are_the_five_solver_sections(paper_case):
     params = load_scene(paper_case).solver_parameters()
     assert list(params) == ["loads", "contact", "electric_contact", "thermal_contact", "newton"]
-    assert params["contact"] == {"c_nu": 1e7, "gap": 0.0, "S": 8.5}
+    # friction_law and mu: the schema's defaults (Tresca), which paper.toml does not write.
+    assert params["contact"] == {"c_nu": 1e7, "gap": 0.0, "S": 8.5, "friction_law": "tresca", "mu": 0.0}
 
 
 def test_optional_keys_take_their_defaults(paper_case, tmp_path):
@@ -81,8 +82,9 @@ def test_an_override_without_a_value_is_an_error(paper_case):
 
 
 def test_an_unknown_key_in_the_file_is_named(paper_case, tmp_path):
-    case = edited(paper_case, tmp_path, "S = 8.5", "S = 8.5\nmu = 0.3")
-    with pytest.raises(SceneError, match=r"unknown key contact\.mu"):
+    # (mu is a key since Coulomb friction: a static coefficient is not.)
+    case = edited(paper_case, tmp_path, "S = 8.5", "S = 8.5\nmu_static = 0.3")
+    with pytest.raises(SceneError, match=r"unknown key contact\.mu_static"):
         load_scene(case)
 
 

@@ -66,6 +66,7 @@ def test_the_suite_covers_the_issue_list():
     assert any("piezoelectric" not in t["scene"]["effects"] for t in tables.values())
     assert any(t["study"]["levels"] == [2] for t in tables.values())
     assert "unstructured" in values("geometry", "diagonals")
+    assert "coulomb" in values("contact", "friction_law") and max(values("contact", "mu") - {None}) >= 1e3
 
 
 @pytest.mark.parametrize("case", [c.stem for c in CASES])
@@ -109,6 +110,9 @@ def test_each_case_is_hard_the_way_its_header_says(suite):
     slip = row("friction_partial_slip")
     assert 0 < slip["slip_nodes"] < slip["gamma3_nodes"]
     assert row("friction_free")["slip_nodes"] == row("friction_free")["gamma3_nodes"]
+    # Coulomb with mu = 1e3: on the pressed branch the bound mu p is far above the shear.
+    mu_large = row("coulomb_mu_large")
+    assert mu_large["slip_nodes"] == 0 and mu_large["active_nodes"] == mu_large["gamma3_nodes"]
     # Gap: never closes / closes on part of Gamma_3 only; lift-off: nothing touches.
     for case in ("gap_open", "lift_off"):
         assert last(case).contact_force == 0 and row(case)["active_nodes"] == 0
@@ -155,9 +159,9 @@ def test_paper_scene_iterations_do_not_grow_with_refinement(tmp_path):
 # state (freefem/newton.idp) and ends on the pressed branch (docs/model.md section 6): the
 # foundation drives the contact further in, through phi_f > 0 (phi_plus) or thermal
 # expansion without the piezoelectric lift (no_piezo), or the shear tears it open
-# (friction_large_shear).
+# (friction_large_shear, and coulomb_mu_large under the same shear).
 PRESSED_FROM_ZERO = {"no_piezo", "no_piezo_pressed", "phi_plus", "phi_plus_pressed", "friction_large_shear",
-                     "friction_large_shear_pressed"}
+                     "friction_large_shear_pressed", "coulomb_mu_large"}
 
 
 @pytest.mark.parametrize("case", [c.stem for c in CASES])

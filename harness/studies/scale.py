@@ -49,9 +49,10 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
 def run(args: argparse.Namespace) -> int:
     out = args.results / "scale"
     work = Layout(results=out / "runs")
-    guarded = [Guarded(load_scene(CASES / "paper.toml"), chain_levels(args.mpi_levels))]
+    on_ranks = ['run.linear_solver="mumps"']  # as mpi_table runs them
+    guarded = [Guarded(load_scene(CASES / "paper.toml", on_ranks), chain_levels(args.mpi_levels))]
     if args.mpi_3d_levels:
-        guarded.append(Guarded(load_scene(CASES / "paper3d.toml"), chain_levels(args.mpi_3d_levels)))
+        guarded.append(Guarded(load_scene(CASES / "paper3d.toml", on_ranks), chain_levels(args.mpi_3d_levels)))
     guarded += [Guarded(load_scene(case), tuple(args.stress_levels)) for case in case_files([])]
     plan = Plan(args.results, tuple(guarded), outputs=(out,), ignore_memory=args.ignore_memory)
 

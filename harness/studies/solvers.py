@@ -1,7 +1,7 @@
 """The solver table (issue 20): every linear solver on the same levels, medians of repeats.
 
     python -m harness solvers [--points paper:64,paper3d:16] [--repeats 3]
-        [--only mumps,umfpack,petsc-fieldsplit,petsc-mumps-blr] [--results results/solvers]
+        [--only mumps,umfpack,petsc-fieldsplit,petsc-mumps-blr,petsc-mg] [--results results/solvers]
         [--rank-point paper:64 --ranks 1,2,4,8]
 
 Each point is a scene of cases/ and a level. The chain below the level is solved once per
@@ -34,7 +34,7 @@ from harness.arguments import add_memory_override, name_list, positive_int
 from harness.engine import quiet, run_levels, runs_of, timed_meshes
 from harness.errors import RunError
 from harness.layout import REPO, Layout
-from harness.petsc_plugin import MUMPS_LU, field_split_options
+from harness.petsc_plugin import MULTIGRID, MUMPS_LU, field_split_options
 from harness.pipeline import Guarded, Plan, run_pipeline
 from harness.run import run_level
 from harness.scene import load_scene
@@ -50,6 +50,7 @@ SOLVERS: dict[str, tuple[str, Callable[[tuple[str, ...]], str]]] = {
     "petsc-fieldsplit": ("petsc", field_split_options),
     "petsc-mumps": ("petsc", lambda fields: MUMPS_LU),
     "petsc-mumps-blr": ("petsc", lambda fields: MUMPS_LU + " -mat_mumps_icntl_35 2 -mat_mumps_cntl_7 1e-8"),
+    "petsc-mg": ("petsc", lambda fields: MULTIGRID),
 }
 KEYS = ("wall_s", "bulk_assembly_s", "factorisation_s", "solve_s", "newton_s", "peak_rss_mb")
 
