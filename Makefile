@@ -26,13 +26,33 @@ paper3d: $(STAMP) freefem
 scenes: $(STAMP) freefem
 	$(PY) -m harness scenes $(CLUSTER_FLAGS)
 
+# The suite without its long tests (each marked `heavy`: 10 s or more); make test-heavy runs
+# those, make test-all both.
+.PHONY: test-heavy test-all
 test: $(STAMP) freefem getfem
+	$(PY) -m pytest -q -m "not heavy"
+	@echo "left out: the tests marked heavy (about 2 min more); run them with make test-heavy, or everything with make test-all"
+
+test-heavy: $(STAMP) freefem getfem
+	$(PY) -m pytest -q -m heavy
+
+test-all: $(STAMP) freefem getfem
 	$(PY) -m pytest -q
 
-# The fast study the slope-regression test compares with (tests/test_regression.py).
-# Regenerate only for an intended change of the scheme, and commit results/paper_fast/.
+# Gold data: what tests compare with lives in tests/gold/, apart from results/ (which the
+# study targets rewrite), and changes only by these targets. Regenerate only for an intended
+# change of the scheme, and commit tests/gold/.
+# baseline: the fast study the slope-regression test compares with (tests/test_regression.py).
 baseline: $(STAMP) freefem
-	-$(PY) -m harness convergence cases/paper.toml --levels 2,4,8,16,32 --set scene.name=paper_fast --force
+	-$(PY) -m harness convergence cases/paper.toml --levels 2,4,8,16,32 --set scene.name=paper_fast --force --results tests/gold
+
+# gold: the baseline, and the tables that `make verify` (the manufactured errors,
+# tests/test_mms.py) and `make cost` (peak memory per level, tests/test_reliability.py)
+# last wrote into results/, pinned as the tests' references.
+.PHONY: gold
+gold: baseline
+	cp results/verification/mms_levels.csv tests/gold/mms_levels.csv
+	cp results/cost/scaling.csv tests/gold/scaling.csv
 
 freefem:
 	@bash scripts/install-freefem.sh

@@ -4,15 +4,11 @@ from __future__ import annotations
 
 import argparse
 import os
-import sys
 from pathlib import Path
-from typing import TYPE_CHECKING, NoReturn
+from typing import NoReturn
 
 from harness.contract import ExitCode
 from harness.layout import REPO, Layout
-
-if TYPE_CHECKING:
-    from harness.scene import Scene
 
 
 class Parser(argparse.ArgumentParser):
@@ -61,47 +57,33 @@ def add_jobs(parser: argparse.ArgumentParser, default: int | None = None) -> Non
 
 
 def add_common(parser: argparse.ArgumentParser, results: Path | None = None) -> None:
-    """--force, --results and --freefem."""
+    """--force, --results, --freefem and the memory guard's override."""
     parser.add_argument("--force", action="store_true", help="rerun even if inputs are unchanged")
     parser.add_argument("--results", type=Path, default=results or Layout().results, help="results root")
     parser.add_argument("--freefem", type=Path, default=Layout().freefem, help="solver scripts")
+    add_memory_override(parser)
+
+
+def add_memory_override(parser: argparse.ArgumentParser) -> None:
+    from harness.guards import OVERRIDE_FLAG
+
+    parser.add_argument(OVERRIDE_FLAG, dest="ignore_memory", action="store_true",
+                        help="run a level even when its estimated memory exceeds what is available")
+
+
+def add_cluster(parser: argparse.ArgumentParser) -> None:
+    """--scheduler / --cluster, for a study whose independent pieces can run on a cluster
+    (harness/executor.py's `cluster`)."""
+    parser.add_argument("--scheduler", metavar="tcp://HOST:PORT",
+                        help="run the study's chains on this Dask scheduler (workers share the results path)")
+    parser.add_argument("--cluster", metavar="local:N",
+                        help="run them on a local Dask cluster of N worker processes")
 
 
 def layout_of(args: argparse.Namespace) -> Layout:
     return Layout(results=args.results, freefem=args.freefem)
 
 
-def add_scene_options(parser: argparse.ArgumentParser) -> None:
-    """What `solve` and `convergence` take besides the case: effects, memory override, common."""
-    from harness.guards import OVERRIDE_FLAG
-
-    parser.add_argument("--effects", help="comma-separated effects, replacing the case's "
+def add_effects(parser: argparse.ArgumentParser) -> None:
+    parser.add_argument("--effects", type=name_list, help="comma-separated effects, replacing the case's "
                         "(e.g. piezoelectric,contact,friction,electric_contact)")
-    add_common(parser)
-    parser.add_argument(OVERRIDE_FLAG, dest="ignore_memory", action="store_true",
-                        help="run a level even when its estimated memory exceeds what is available")
-
-
-def prepared_scene(args: argparse.Namespace, levels: tuple[int, ...] | None = None,
-                   nested: bool = False) -> tuple[Scene, tuple[int, ...]]:
-    """The case with its overrides and --effects, its warnings printed, the results root and
-    the levels checked (nested when `nested`, memory unless overridden)."""
-    from harness.faults import check_results_root
-    from harness.guards import check_memory, check_nested, geometry_depth
-    from harness.scene import load_scene
-
-    overrides = list(args.overrides)
-    if args.effects is not None:
-        overrides.append("scene.effects=" + repr(name_list(args.effects)).replace("'", '"'))
-    scene = load_scene(args.case, overrides)
-    for warning in scene.warnings:
-        print(f"warning: {warning}", file=sys.stderr)
-    check_results_root(args.results)
-    levels = levels or scene.levels
-    if nested:
-        check_nested(levels)
-    if not args.ignore_memory:
-        check_memory(scene.geometry.width, scene.geometry.height, levels, scene.effects, scene.element,
-                     depth=geometry_depth(scene.geometry), factorises=scene.factorises,
-                     multigrid=scene.multigrid_levels > 0)
-    return scene, levels

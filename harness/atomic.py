@@ -30,45 +30,57 @@ def write_atomic(target: Path, content: str | bytes) -> None:
 
 
 # What a study owns in its scene directory besides the level runs.
-REPORT_FILES = ("convergence.csv", "summary.json", "convergence.png")
+REPORT_FILES = ("convergence.csv", "summary.json", "convergence.png", "gci.csv")
 LEVEL_DIR = re.compile(r"n\d+")
 BACKUP_PREFIX = ".backup-"
 
 
 class StudyTransaction:
-    """A study's writes to its scene directory, all or nothing.
+    """A study's writes to the directories it owns, all or nothing.
 
-    On entry the earlier study (its level dirs and report) is kept as hard links in a hidden
-    backup dir: nothing under a level dir is ever changed in place (a new run is swapped in
-    whole, run.py), so the links hold the earlier files at no copying cost. On success the
-    backup goes; on any failure or signal the earlier level dirs and report are put back, so
-    the directory holds the earlier complete study or the new one, never a mix. A backup
-    left by a harness that was SIGKILLed is restored on the next entry."""
+    `directories`: each scene directory of the study (its level dirs and REPORT_FILES) and
+    each output directory (`outputs`: its level dirs and every file directly in it: the
+    study's tables, Markdown and plots). On entry what they hold is kept as hard links in a
+    hidden backup dir per directory: nothing under a level dir is ever changed in place (a
+    new run is swapped in whole, run.py), so the links hold the earlier files at no copying
+    cost. On success the backups go; on any failure or signal every directory's earlier
+    level dirs and files are put back, so each holds the earlier complete study or the new
+    one, never a mix. A backup left by a harness that was SIGKILLed is restored on the next
+    entry."""
 
-    def __init__(self, case_dir: Path) -> None:
-        self.case_dir = case_dir
-        self.backup = case_dir / f"{BACKUP_PREFIX}{os.getpid()}-{uuid.uuid4().hex[:8]}"
+    def __init__(self, *directories: Path, outputs: tuple[Path, ...] = ()) -> None:
+        tag = f"{BACKUP_PREFIX}{os.getpid()}-{uuid.uuid4().hex[:8]}"
+        # An output directory listed as a scene directory too is owned as an output (all its files).
+        owned = {Path(d): False for d in directories} | {Path(d): True for d in outputs}
+        self.owned = [(directory, every_file, directory / tag) for directory, every_file in owned.items()]
+
+    @property
+    def backup(self) -> Path:
+        """The first directory's backup (one directory: the study's one scene)."""
+        return self.owned[0][2]
 
     def __enter__(self) -> StudyTransaction:
-        if not self.case_dir.is_dir():
-            return self
-        for stale in self.case_dir.glob(f"{BACKUP_PREFIX}*"):
-            if not pid_alive(backup_pid(stale)):
-                restore(stale, self.case_dir)
-        self.backup.mkdir()
-        for item in study_items(self.case_dir):
-            if item.is_dir():
-                shutil.copytree(item, self.backup / item.name, copy_function=link_or_copy)
-            else:
-                link_or_copy(item, self.backup / item.name)
+        for directory, every_file, backup in self.owned:
+            if not directory.is_dir():
+                continue
+            for stale in directory.glob(f"{BACKUP_PREFIX}*"):
+                if not pid_alive(backup_pid(stale)):
+                    restore(stale, directory)
+            backup.mkdir()
+            for item in study_items(directory, every_file):
+                if item.is_dir():
+                    shutil.copytree(item, backup / item.name, copy_function=link_or_copy)
+                else:
+                    link_or_copy(item, backup / item.name)
         return self
 
     def __exit__(self, kind: type | None, *_: object) -> None:
-        if not self.backup.exists():
-            return
-        if kind is not None:
-            restore(self.backup, self.case_dir)
-        shutil.rmtree(self.backup, ignore_errors=True)
+        for directory, _every_file, backup in self.owned:
+            if not backup.exists():
+                continue
+            if kind is not None:
+                restore(backup, directory)
+            shutil.rmtree(backup, ignore_errors=True)
 
 
 def link_or_copy(source: str | Path, target: str | Path) -> None:
@@ -81,9 +93,11 @@ def link_or_copy(source: str | Path, target: str | Path) -> None:
         shutil.copy2(source, target)
 
 
-def study_items(case_dir: Path) -> list[Path]:
+def study_items(case_dir: Path, every_file: bool = False) -> list[Path]:
+    """The level dirs and the report files (every visible file when `every_file`) of a directory."""
     return [p for p in sorted(case_dir.iterdir())
-            if (p.is_dir() and LEVEL_DIR.fullmatch(p.name)) or (p.is_file() and p.name in REPORT_FILES)]
+            if (p.is_dir() and LEVEL_DIR.fullmatch(p.name))
+            or (p.is_file() and (p.name in REPORT_FILES or (every_file and not p.name.startswith("."))))]
 
 
 def restore(backup: Path, case_dir: Path) -> None:

@@ -1,14 +1,15 @@
-"""The one study engine: run a set of levels of a scene and return each level's outcome.
+"""The one level runner: `run_levels` runs a set of levels of a scene and returns each
+level's outcome, `{n: LevelOutcome}`, in one of two ways:
 
-Two ways to run levels, both returning `{n: LevelOutcome}`:
-
-- `run_levels`: independent levels (each from the case's own start), `jobs` at a time;
-- `run_chain`: coarsest first, each level warm-started from the converged one below it,
-  pipelined or not; it stops at its first failure.
+- a chain (the default): coarsest first, each level warm-started from the converged one
+  below it (when the scene starts from `coarser`), pipelined or not; it stops at its first
+  failure;
+- independent levels (`chain=False`): each from the case's own start, `jobs` at a time;
+  every level runs.
 
 Meshes come from a `Mapping[int, Path]` (`BackgroundMeshes` makes them in a forked worker
-while the runs go on). `run_chains` drives several independent chains through an
-`Executor`: the seam where a distributed executor (Dask) is plugged in.
+while the runs go on). Independent pieces of work (whole chains, whole studies) are mapped
+by `harness.executor.each`, the seam a Dask cluster serves.
 """
 
 from __future__ import annotations
@@ -20,7 +21,7 @@ import sys
 import tempfile
 import threading
 import time
-from concurrent.futures import Executor, ProcessPoolExecutor, ThreadPoolExecutor, as_completed
+from concurrent.futures import ProcessPoolExecutor, ThreadPoolExecutor, as_completed
 from dataclasses import dataclass
 from pathlib import Path
 from typing import Callable, Iterator, Mapping, Sequence
@@ -161,47 +162,65 @@ def run_levels(
     scene: Scene,
     meshes: Mapping[int, Path],
     layout: Layout,
-    jobs: int,
+    *,
     force: bool = False,
     progress: Progress = stderr_line,
+    chain: bool = True,
+    pipelined: bool = True,
+    warm: WarmStart | None = None,
+    jobs: int = 1,
+) -> dict[int, LevelOutcome]:
+    """Every level of `meshes`: a chain (`warm` its first level's start, `pipelined` as
+    `_chain` says), or with `chain=False` independent levels, `jobs` at a time."""
+    if chain:
+        return _chain(scene, meshes, layout, force, progress, pipelined, warm)
+    return _independent(scene, meshes, layout, jobs, force, progress)
+
+
+def _independent(
+    scene: Scene,
+    meshes: Mapping[int, Path],
+    layout: Layout,
+    jobs: int,
+    force: bool,
+    progress: Progress,
 ) -> dict[int, LevelOutcome]:
     """Every level from the case's own start, `jobs` at a time, largest first (the finest
     level dominates the wall time). Every level runs; failures are outcomes."""
     outcomes: dict[int, LevelOutcome] = {}
     with ThreadPoolExecutor(max_workers=max(1, jobs)) as pool:
         # The mesh is looked up in the worker, which waits for it there.
-        futures = {pool.submit(attempt, scene, meshes, n, layout, force, None): n
+        futures = {pool.submit(_attempt, scene, meshes, n, layout, force): n
                    for n in sorted(meshes, reverse=True)}
         for count, future in enumerate(as_completed(futures), start=1):
             outcome = future.result()
             outcomes[outcome.n] = outcome
-            progress(f"[{count}/{len(meshes)}] n={outcome.n} {describe(outcome)}")
+            progress(f"[{count}/{len(meshes)}] n={outcome.n} {_describe(outcome)}")
     return dict(sorted(outcomes.items()))
 
 
-def attempt(scene: Scene, meshes: Mapping[int, Path], n: int, layout: Layout, force: bool,
-            warm: WarmStart | None) -> LevelOutcome:
-    """One level run alone, its failure classified."""
+def _attempt(scene: Scene, meshes: Mapping[int, Path], n: int, layout: Layout, force: bool) -> LevelOutcome:
+    """One level run alone from the case's own start, its failure classified."""
     start = time.perf_counter()
     try:
-        return LevelOutcome.of_run(run_level(scene, meshes[n], n, layout, force, warm))
+        return LevelOutcome.of_run(run_level(scene, meshes[n], n, layout, force))
     except RunError as exc:
         return LevelOutcome.of_failure(n, exc, layout.failed_dir(scene.name, n), time.perf_counter() - start)
 
 
-def run_chain(
+def _chain(
     scene: Scene,
     meshes: Mapping[int, Path],
     layout: Layout,
-    force: bool = False,
-    progress: Progress = stderr_line,
-    pipelined: bool = True,
-    warm: WarmStart | None = None,
-    chained: bool = True,
+    force: bool,
+    progress: Progress,
+    pipelined: bool,
+    warm: WarmStart | None,
 ) -> dict[int, LevelOutcome]:
     """Coarsest first, each level started from the one below it (from `warm` for the first,
     or the case's own start); it stops at the first failure, which is the last outcome.
-    `chained=False` runs the same levels one by one, each from the case's own start.
+    A scene that does not start from `coarser` runs the same levels one by one, each from
+    its own start.
 
     Pipelined (the default): while a level runs, the next one is already started (its
     compilation, meshes and bulk assembly, freefem/bulk.idp) and waits for this level's
@@ -211,7 +230,7 @@ def run_chain(
     level alone."""
     outcomes: dict[int, LevelOutcome] = {}
     levels = sorted(meshes)
-    chained = chained and scene.initial_guess == "coarser"  # any other start ignores the level below
+    chained = scene.initial_guess == "coarser"  # any other start ignores the level below
     current: LevelRun | None = None
     following: LevelRun | None = None
     finest: LevelRun | None = None
@@ -225,8 +244,8 @@ def run_chain(
             current = current or LevelRun(scene, meshes[n], n, layout, force)
             try:
                 cached = current.start(warm if chained else None)
-                if early and finest is None and count < len(levels) - 1 and mesh_ready(meshes, top):
-                    finest = launched_early(scene, meshes, top, levels[-2], layout, force)
+                if early and finest is None and count < len(levels) - 1 and _mesh_ready(meshes, top):
+                    finest = _launched_early(scene, meshes, top, levels[-2], layout, force)
                     early = finest is not None
                 ahead: HarnessError | None = None
                 if count < len(levels):
@@ -250,7 +269,7 @@ def run_chain(
                 progress(f"[{count}/{len(levels)}] n={n} FAILED")
                 break
             outcomes[n] = LevelOutcome.of_run(run)
-            progress(f"[{count}/{len(levels)}] n={n} {describe(outcomes[n])}")
+            progress(f"[{count}/{len(levels)}] n={n} {_describe(outcomes[n])}")
             warm = run.warm_start(meshes[n])
             current, following = following, None
     finally:
@@ -260,13 +279,13 @@ def run_chain(
     return outcomes
 
 
-def mesh_ready(meshes: Mapping[int, Path], n: int) -> bool:
+def _mesh_ready(meshes: Mapping[int, Path], n: int) -> bool:
     """Whether looking level n's mesh up would not wait (a background mesher may still run)."""
     ready = getattr(meshes, "ready", None)
     return ready(n) if callable(ready) else True
 
 
-def launched_early(scene: Scene, meshes: Mapping[int, Path], n: int, coarser: int, layout: Layout,
+def _launched_early(scene: Scene, meshes: Mapping[int, Path], n: int, coarser: int, layout: Layout,
                    force: bool) -> LevelRun | None:
     """Level n's FreeFEM, started now to wait for the state of level `coarser`; None when its
     mesh or launch fails (the chain meets that failure again in its turn, in level order)."""
@@ -282,51 +301,7 @@ def launched_early(scene: Scene, meshes: Mapping[int, Path], n: int, coarser: in
     return level
 
 
-@dataclass(frozen=True)
-class Chain:
-    """One independent chain of a batch: a scene, its meshes and how to run it."""
-
-    scene: Scene
-    levels: tuple[int, ...]
-    pipelined: bool = True
-    chained: bool = True
-
-
-def run_chains(
-    chains: Sequence[Chain],
-    layout: Layout,
-    force: bool = False,
-    executor: Executor | None = None,
-    progress: Progress = stderr_line,
-) -> list[dict[int, LevelOutcome]]:
-    """Independent chains, side by side through `executor` (its `submit` is all that is used),
-    or one after the other in this process when there is none."""
-
-    def one(chain: Chain) -> dict[int, LevelOutcome]:
-        meshes = InlineMeshes(chain.scene, chain.levels, layout)
-        return run_chain(chain.scene, meshes, layout, force, progress, chain.pipelined, chained=chain.chained)
-
-    if executor is None:
-        return [one(chain) for chain in chains]
-    futures = [executor.submit(one, chain) for chain in chains]
-    return [future.result() for future in futures]
-
-
-def study_outcomes(
-    scene: Scene,
-    meshes: Mapping[int, Path],
-    layout: Layout,
-    jobs: int,
-    force: bool = False,
-    progress: Progress = stderr_line,
-) -> dict[int, LevelOutcome]:
-    """The levels of a convergence study, as the case says to start them."""
-    if scene.initial_guess == "coarser":
-        return run_chain(scene, meshes, layout, force, progress)
-    return run_levels(scene, meshes, layout, jobs, force, progress)
-
-
-def describe(outcome: LevelOutcome) -> str:
+def _describe(outcome: LevelOutcome) -> str:
     if not outcome.ok:
         return "FAILED"
     run = outcome.run

@@ -21,6 +21,10 @@ from __future__ import annotations
 import math
 from dataclasses import asdict, dataclass
 
+import pandas as pd
+
+from harness.record import RunRecord
+
 SAFETY = 1.25  # Celik et al.'s factor of safety for three grids
 
 
@@ -99,3 +103,33 @@ def three_grid(h: tuple[float, float, float], f: tuple[float, float, float]) -> 
 
 def relative(difference: float, value: float) -> float:
     return abs(difference / value) if value else math.nan
+
+
+# Scalar outputs of run.json whose three-grid behaviour the GCI table reports beside the errors.
+GCI_OUTPUTS = ("contact_force", "max_abs_u", "max_theta", "heat_in_contact", "active_measure")
+
+
+def gci_table(errors: pd.DataFrame, records: dict[int, RunRecord]) -> pd.DataFrame:
+    """Every consecutive triple of levels, for each field's error norm (`errors`: a study's
+    table, n and err_<field>, blank at the reference) and each scalar output of the runs'
+    run.json (`records`, by level)."""
+    series: dict[str, dict[int, float]] = {}
+    for column in (c for c in errors.columns if c.startswith("err_") and c != "err_total"):
+        graded = errors[errors[column].notna()]
+        series[column] = dict(zip(graded["n"].astype(int), graded[column].astype(float)))
+    for name in GCI_OUTPUTS:
+        values = {n: getattr(record, name) for n, record in records.items()}
+        if values and all(isinstance(v, (int, float)) and not isinstance(v, bool) for v in values.values()):
+            series[name] = {n: float(v) for n, v in values.items()}
+    rows = []
+    for quantity, values in series.items():
+        levels = sorted(values)
+        for coarse, middle, fine in zip(levels, levels[1:], levels[2:]):
+            result = three_grid((1 / fine, 1 / middle, 1 / coarse), (values[fine], values[middle], values[coarse]))
+            rows.append({"quantity": quantity, "n_fine": fine, "n_medium": middle, "n_coarse": coarse,
+                         **result.row()})
+    return pd.DataFrame(rows)
+
+
+def finest_triples(table: pd.DataFrame) -> pd.DataFrame:
+    return table.loc[table.groupby("quantity", sort=False)["n_fine"].idxmax()].reset_index(drop=True)

@@ -108,7 +108,7 @@ def grid_cells(geometry: Geometry, n: int) -> dict[float, int]:
 def write_with_gmsh(geometry: Geometry, cells: dict[float, int], n: int, target: Path) -> None:
     # interruptible=False: gmsh must not install a SIGINT handler (fails off the main thread).
     gmsh.initialize(readConfigFiles=False, interruptible=False)
-    signals.reassert()  # gmsh.initialize resets SIGTERM and SIGHUP to their defaults
+    signals.reassert()  # gmsh.initialize resets SIGTERM, SIGHUP and SIGPIPE to their defaults
     try:
         gmsh.option.setNumber("General.Terminal", 0)
         gmsh.model.add("scene")
@@ -249,7 +249,7 @@ def unstructured_box(box: Box, n: int) -> tuple[np.ndarray, np.ndarray]:
     on the box cut into blocks at every patch edge, so that each boundary triangle lies in
     one patch; (points, tetrahedra) as index arrays."""
     gmsh.initialize(readConfigFiles=False, interruptible=False)
-    signals.reassert()  # gmsh.initialize resets SIGTERM and SIGHUP to their defaults
+    signals.reassert()  # gmsh.initialize resets SIGTERM, SIGHUP and SIGPIPE to their defaults
     try:
         gmsh.option.setNumber("General.Terminal", 0)
         gmsh.option.setNumber("General.NumThreads", 1)

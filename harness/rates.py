@@ -1,10 +1,11 @@
-"""Convergence rates from errors E(h): least-squares slopes and pairwise orders."""
+"""Convergence rates from errors E(h): least-squares slopes and pairwise orders; power laws
+y = C x^p fitted in log-log (the cost study's error, time and memory laws)."""
 
 from __future__ import annotations
 
 import math
 from dataclasses import dataclass
-from typing import Sequence
+from typing import Any, Sequence
 
 import numpy as np
 
@@ -56,3 +57,45 @@ def slope_fit(h: Sequence[float], errors: Sequence[float]) -> SlopeFit:
     residual = float(np.sum((y - (slope * x + intercept)) ** 2))
     stderr = math.sqrt(residual / dof / sxx) if dof > 0 else math.nan
     return SlopeFit(float(slope), stderr, float(intercept), len(x))
+
+
+@dataclass(frozen=True)
+class PowerLaw:
+    """y = coefficient * x^exponent, fitted in log-log by least squares."""
+
+    coefficient: float
+    exponent: float
+    points: int
+
+    def __call__(self, x: float) -> float:
+        return self.coefficient * x**self.exponent
+
+    def solve(self, y: float) -> float:
+        """The x where the law reaches y."""
+        return (y / self.coefficient) ** (1.0 / self.exponent)
+
+    @property
+    def valid(self) -> bool:
+        return math.isfinite(self.coefficient) and math.isfinite(self.exponent) and self.exponent != 0
+
+
+def power_fit(x: Sequence[float], y: Sequence[float]) -> PowerLaw:
+    """log y = log C + p log x over the points with positive finite y (NaN law if < 2)."""
+    xs, ys = np.asarray(x, dtype=float), np.asarray(y, dtype=float)
+    keep = np.isfinite(ys) & (ys > 0) & np.isfinite(xs) & (xs > 0)
+    if keep.sum() < 2:
+        return PowerLaw(math.nan, math.nan, int(keep.sum()))
+    fit = slope_fit(xs[keep], ys[keep])
+    return PowerLaw(math.exp(fit.intercept), fit.slope, fit.points)
+
+
+def scaling_exponents(scaling: Any, min_n: int = 32) -> dict[str, float]:
+    """T ~ dofs^a and M ~ dofs^b over the levels n >= min_n."""
+    if scaling.empty:
+        return {}
+    big = scaling[scaling["n"] >= min_n]
+    return {
+        "time_vs_dofs": power_fit(big["dofs"], big["wall_s"]).exponent,
+        "memory_vs_dofs": power_fit(big["dofs"], big["peak_rss_mb"]).exponent,
+        "from_n": min_n,
+    }

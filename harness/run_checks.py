@@ -1,16 +1,19 @@
-"""The physical checks of every run, printed by `solve` and `convergence`, and the
-small-strain guard: a failed check makes the command's verdict fail (exit 1)."""
+"""The verdict of the physical checks, computed here and only here (`judge`), for every
+study that reports them (solve, convergence, stress, branches); the lines `solve` and
+`convergence` print; and the small-strain guard. A failed check makes the verdict fail
+(exit 1)."""
 
 from __future__ import annotations
 
 import sys
-from dataclasses import dataclass
-from typing import Any, Iterable
+from dataclasses import dataclass, field
+from typing import Any, Iterable, Mapping
 
 from harness.checks import CHECK_FLAGS, physical_checks
 from harness.errors import FieldsError
 from harness.fields import Fields, read_fields
 from harness.guards import max_displacement_gradient, small_strain_warning
+from harness.record import RunRecord
 from harness.run import RunResult
 from harness.scene import Scene
 
@@ -36,6 +39,39 @@ NEEDS = {
 
 
 @dataclass(frozen=True)
+class Judgement:
+    """The physical checks of one converged run: physical_checks' values and flags, the flags
+    that failed, and those the solver wrote no quantity for (said to be missing, not failed:
+    a scene or dimension checks.idp does not cover yet)."""
+
+    values: dict[str, Any] = field(default_factory=dict)
+    failed: tuple[str, ...] = ()
+    missing: tuple[str, ...] = ()
+
+    @property
+    def passed(self) -> bool:
+        return not self.failed
+
+    @property
+    def reported(self) -> bool:
+        return bool(self.values)
+
+
+def judge(record: RunRecord, scene: Scene) -> Judgement:
+    """Pass or fail of every check of one run (harness/checks.py compares each with its
+    tolerance); `checks_ok` among the values is this verdict. No checks in run.json: none
+    reported, nothing failed."""
+    reported = record.checks
+    if not reported:
+        return Judgement(missing=CHECK_FLAGS)
+    values = physical_checks(record, scene)  # every quantity FreeFEM's (checks.idp)
+    missing = tuple(flag for flag in CHECK_FLAGS if not all(key in reported for key in NEEDS[flag]))
+    failed = tuple(flag for flag in CHECK_FLAGS if not values.get(flag) and flag not in missing)
+    values["checks_ok"] = not failed
+    return Judgement(values, failed, missing)
+
+
+@dataclass(frozen=True)
 class Checked:
     n: int
     line: str  # what is printed for the level
@@ -43,31 +79,26 @@ class Checked:
     warnings: tuple[str, ...] = ()
 
 
-def check_run(scene: Scene, run: RunResult) -> Checked:
-    """Evaluate the checks of one converged run (harness/checks.py)."""
-
-    record = run.record
-    fields = solution_fields(run)
+def check_run(scene: Scene, run: RunResult, fields: Fields | None = None) -> Checked:
+    """Evaluate the checks of one converged run (harness/checks.py); `fields`: its solution,
+    when already parsed (else read here)."""
+    fields = fields or solution_fields(run)
     warnings = []
     if fields is not None and "u" in fields.values:
         gradient = max_displacement_gradient(fields.points, fields.cells, fields.field("u"))
         warning = small_strain_warning(gradient, f"{scene.name} n={run.n}")
         if warning:
             warnings.append(warning)
-    if not record.checks:
+    judged = judge(run.record, scene)
+    if not judged.reported:
         return Checked(run.n, f"checks n={run.n}: none reported by the solver", True, tuple(warnings))
-    values = physical_checks(record, scene)  # every quantity FreeFEM's (checks.idp)
-    reported = record.checks
-    # A check whose quantity the solver did not write (a scene or dimension checks.idp does not
-    # cover yet) is said to be missing, not failed.
-    missing = [flag for flag in CHECK_FLAGS if not all(key in reported for key in NEEDS[flag])]
-    failed = [flag for flag in CHECK_FLAGS if not values.get(flag) and flag not in missing]
-    if not failed:
-        done = [f[:-3] for f in CHECK_FLAGS if f not in missing]
-        note = f"; not reported: {', '.join(f[:-3] for f in missing)}" if missing else ""
+    if judged.passed:
+        done = [f[:-3] for f in CHECK_FLAGS if f not in judged.missing]
+        note = f"; not reported: {', '.join(f[:-3] for f in judged.missing)}" if judged.missing else ""
         return Checked(run.n, f"checks n={run.n}: pass ({', '.join(done)}){note}", True, tuple(warnings))
+    values = judged.values
     detail = "; ".join(f"{flag[:-3]} " + ", ".join(f"{k} {fmt(values.get(k))}" for k in SHOWN[flag])
-                       for flag in failed)
+                       for flag in judged.failed)
     return Checked(run.n, f"checks n={run.n}: FAIL {detail}", False, tuple(warnings))
 
 
@@ -82,11 +113,13 @@ def fmt(value: Any) -> str:
     return f"{value:.3g}" if isinstance(value, float) else str(value)
 
 
-def print_checks(scene: Scene, runs: Iterable[RunResult]) -> list[Checked]:
-    """Print each run's checks (stdout) and warnings (stderr); the list, for the verdict."""
+def print_checks(scene: Scene, runs: Iterable[RunResult],
+                 solutions: Mapping[int, Fields] | None = None) -> list[Checked]:
+    """Print each run's checks (stdout) and warnings (stderr); the list, for the verdict.
+    `solutions`: the runs' parsed fields by level, when a study has them already."""
     out = []
     for run in runs:
-        checked = check_run(scene, run)
+        checked = check_run(scene, run, (solutions or {}).get(run.n))
         print(checked.line)
         for warning in checked.warnings:
             print(f"warning: {warning}", file=sys.stderr)

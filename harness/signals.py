@@ -10,6 +10,7 @@ the process alive."""
 from __future__ import annotations
 
 import contextlib
+import ctypes
 import os
 import shutil
 import signal
@@ -124,16 +125,33 @@ def handled() -> Iterator[Children]:
 
 
 def reassert() -> None:
-    """Put the handlers Python believes in back in force in the kernel. Native code may reset
-    a disposition behind Python's back: gmsh.initialize() sets SIGTERM and SIGHUP to their
-    defaults, after which a SIGTERM killed the harness outright, leaving its FreeFEM runs'
-    temp dirs behind. Only the main thread may set handlers (elsewhere there is none to keep)."""
+    """Put the dispositions Python believes in back in force in the kernel. Native code may
+    reset one behind Python's back: gmsh.initialize() sets SIGTERM, SIGHUP and SIGPIPE to
+    their defaults, after which a SIGTERM killed the harness outright, leaving its FreeFEM
+    runs' temp dirs behind, and a write to a closed pipe killed it silently (exit 141, no
+    `error:` line) instead of raising BrokenPipeError. Only the main thread may set a Python
+    handler; SIGPIPE, which Python ignores, is put back from any thread (an ignored signal
+    has no handler to run)."""
+    if signal.getsignal(signal.SIGPIPE) == signal.SIG_IGN:
+        ignore_sigpipe()
     if threading.current_thread() is not threading.main_thread():
         return
     for signum in HANDLED:
         handler = signal.getsignal(signum)
         if handler is not None:
             signal.signal(signum, handler)
+
+
+def ignore_sigpipe() -> None:
+    """SIGPIPE ignored process-wide, from any thread: libc's signal(), as Python's own start-up
+    sets it (signal.signal would refuse outside the main thread)."""
+    if threading.current_thread() is threading.main_thread():
+        signal.signal(signal.SIGPIPE, signal.SIG_IGN)
+        return
+    libc = ctypes.CDLL(None, use_errno=True)
+    libc.signal.restype = ctypes.c_void_p
+    libc.signal.argtypes = (ctypes.c_int, ctypes.c_void_p)
+    libc.signal(int(signal.SIGPIPE), int(signal.SIG_IGN))
 
 
 def in_forked_child() -> None:

@@ -4,13 +4,14 @@ from __future__ import annotations
 
 import math
 import time
-from dataclasses import dataclass
+from dataclasses import dataclass, field
+from typing import Mapping
 
 import pandas as pd
 
-from harness.engine import BackgroundMeshes, Progress, runs_of, stderr_line, study_outcomes
+from harness.engine import BackgroundMeshes, Progress, run_levels, runs_of, stderr_line
 from harness.errors import RunError
-from harness.fields import read_fields
+from harness.fields import Fields, read_fields
 from harness.freefem import freefem_version
 from harness.layout import Layout
 from harness.norms import error_norms
@@ -30,6 +31,8 @@ class Study:
     slopes: dict[str, dict[str, float]]  # field or "total" -> {"all": p, "window": p}
     runs: dict[int, RunResult]
     wall_s: float
+    # Each level's solution.vtu, parsed once for the errors and reused by the checks.
+    solutions: dict[int, Fields] = field(default_factory=dict, repr=False, compare=False)
 
     @property
     def reference(self) -> int:
@@ -54,7 +57,8 @@ def run_study(
     force: bool = False,
     progress: Progress = stderr_line,
 ) -> Study:
-    """Every level (engine.study_outcomes), then the errors against the finest and the
+    """Every level (engine.run_levels: a chain when the case starts from `coarser`, else
+    independent levels), then the errors against the finest and the
     slopes; a RunError naming the first failed level if any failed."""
     levels = tuple(sorted(set(levels)))
     if len(levels) < 2:
@@ -63,20 +67,26 @@ def run_study(
     freefem_version()  # asked once here, not by every worker thread at once
     start = time.perf_counter()
     with BackgroundMeshes(scene, levels, layout) as meshes:
-        runs = runs_of(study_outcomes(scene, meshes, layout, jobs, force, progress))
+        runs = runs_of(run_levels(scene, meshes, layout, force=force, progress=progress,
+                                  chain=scene.initial_guess == "coarser", jobs=jobs))
     fields = tuple(f for f in NORMED_FIELDS if f in (runs[levels[-1]].record.fields or NORMED_FIELDS))
-    table = error_table(runs, fields)
-    return Study(scene, fields, table, slopes(table, fields), runs, time.perf_counter() - start)
+    solutions = {n: read_fields(run.solution) for n, run in runs.items()}
+    table = error_table(runs, fields, solutions)
+    return Study(scene, fields, table, slopes(table, fields), runs, time.perf_counter() - start, solutions)
 
 
-def error_table(runs: dict[int, RunResult], fields: tuple[str, ...]) -> pd.DataFrame:
+def error_table(runs: dict[int, RunResult], fields: tuple[str, ...],
+                solutions: Mapping[int, Fields] | None = None) -> pd.DataFrame:
+    """Each level's errors against the finest (`solutions`: the levels' parsed fields, read
+    from their solution.vtu when not given)."""
     levels = sorted(runs)
-    reference = read_fields(runs[levels[-1]].solution)
+    parsed = solutions or {n: read_fields(runs[n].solution) for n in levels}
+    reference = parsed[levels[-1]]
     rows = []
     for n in levels:
         record = runs[n].record
         errors = (
-            error_norms(read_fields(runs[n].solution), reference, list(fields))
+            error_norms(parsed[n], reference, list(fields))
             if n != levels[-1]
             else dict.fromkeys(fields, math.nan)
         )

@@ -12,7 +12,7 @@ from __future__ import annotations
 import json
 import math
 from pathlib import Path
-from typing import Any, Callable
+from typing import Any, Callable, Iterable, Sequence
 
 import numpy as np
 import pandas as pd
@@ -85,3 +85,18 @@ def cell(value: Any) -> str:
     if isinstance(value, (float, np.floating)):
         return "" if math.isnan(value) else f"{value:.3g}"
     return str(value)
+
+
+def markdown_table(header: Sequence[str], rows: Iterable[Sequence[Any]]) -> str:
+    """The one Markdown table writer: a header, its rule, a line per row of cells (str()).
+    An empty cell is one space; a row shorter than the header is closed with bare pipes
+    (a failed row that says why once, across the columns it has no values for)."""
+    lines = [row_line(header), "|" + "---|" * len(header)]
+    for row in rows:
+        cells = [str(c) for c in row]
+        lines.append(row_line(cells) + "|" * (len(header) - len(cells)))
+    return "\n".join(lines) + "\n"
+
+
+def row_line(cells: Sequence[str]) -> str:
+    return "|" + "|".join(f" {c} " if c else " " for c in cells) + "|"

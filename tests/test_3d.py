@@ -196,6 +196,7 @@ def test_a_coupling_outside_class_6mm_is_refused_in_3d_only(tmp_path, dimension,
         assert outcome.returncode != 0 and errors == [f"error: material C14: {error}"], out
 
 
+@pytest.mark.heavy  # 15 s: `make test-heavy`
 def test_manufactured_contact3d_converges_at_the_p1_rates_on_every_branch(tmp_path):
     """cases/mms/contact3d.toml at h = 1/2, 1/4 (CI time; the committed rows of
     results/verification/mms.csv go to 1/16): every field's H1 error falls at order ~1 and
@@ -204,7 +205,7 @@ def test_manufactured_contact3d_converges_at_the_p1_rates_on_every_branch(tmp_pa
     1/4 -> 1/8). The exact state visits open and closed, stick and slip nodes on Gamma_3."""
     from harness.layout import Layout
     from harness.scene import load_scene
-    from harness.studies.verify import mms_errors
+    from harness.verification import mms_errors
 
     layout = Layout(results=tmp_path / "results")
     scene = load_scene(CASES / "mms" / "contact3d.toml")

@@ -12,15 +12,13 @@ import numpy as np
 import pandas as pd
 import pytest
 
-from harness.studies.cost import (
+from harness.frontier import (
     Fits,
-    PowerLaw,
     add_chain_costs,
     cheapest,
     fit_discretisation,
     frontier_rows,
     next_level,
-    power_fit,
     run_cost,
     write_outputs,
 )
@@ -29,7 +27,8 @@ from harness.layout import Layout
 from harness.mesh import build_mesh
 from harness.norms import error_norms
 from harness.scene import load_scene
-from harness.engine import run_chain, runs_of
+from harness.engine import run_levels, runs_of
+from harness.rates import PowerLaw, power_fit
 
 CASE = Path(__file__).parents[1] / "cases" / "paper.toml"
 H = np.array([1 / 4, 1 / 8, 1 / 16, 1 / 32, 1 / 64])
@@ -122,7 +121,7 @@ def chain(tmp_path: Path, levels, *overrides):
     scene = load_scene(CASE, overrides)
     layout = Layout(results=tmp_path)
     meshes = {n: build_mesh(scene.geometry, n, layout.meshes_dir(scene.name)).path for n in levels}
-    return meshes, runs_of(run_chain(scene, meshes, layout, False, lambda s: None))
+    return meshes, runs_of(run_levels(scene, meshes, layout, progress=lambda s: None))
 
 
 def reference_options(meshes, runs, n: int, element: str) -> list[str]:

@@ -7,14 +7,17 @@ from __future__ import annotations
 import os
 import signal
 import threading
+import time
 from pathlib import Path
 
 import pytest
 
-from harness.errors import SceneError
-from harness.executor import LevelChain, LocalExecutor, executor, parse_cluster
+from harness.engine import BackgroundMeshes, quiet, run_levels, runs_of
+from harness.errors import RunError, SceneError
+from harness.executor import cluster, each, parse_cluster
 from harness.layout import Layout
-from harness.scene import load_scene
+from harness.run import RunResult
+from harness.scene import Scene, load_scene
 from harness.study import error_table
 
 pytest.importorskip("distributed", reason="dask/distributed missing (the 'cluster' extra; `make test` installs it)")
@@ -24,64 +27,88 @@ SCENES = ("paper", "elastic")
 LEVELS = (2, 4, 8)
 
 
-def chains(results: Path) -> list[LevelChain]:
-    return [LevelChain(load_scene(CASES / f"{name}.toml"), LEVELS, Layout(results=results)) for name in SCENES]
+def scenes() -> list[Scene]:
+    return [load_scene(CASES / f"{name}.toml") for name in SCENES]
 
 
-def tables(outcomes) -> dict[str, str]:
+def chain_runs(scene: Scene, layout: Layout, levels: tuple[int, ...] = LEVELS,
+               force: bool = False) -> tuple[int, dict[int, RunResult]]:
+    """One scene's levels as a study runs them (meshes in the background), and the pid of the
+    process that ran them."""
+    with BackgroundMeshes(scene, levels, layout) as meshes:
+        outcomes = run_levels(scene, meshes, layout, force=force, progress=quiet,
+                              chain=scene.initial_guess == "coarser")
+    return os.getpid(), runs_of(outcomes)
+
+
+def study(pool, results: Path) -> tuple[set[int], dict[str, dict[int, RunResult]]]:
+    """Every scene's chain through `pool` (None: this process): the pids that ran them, the runs."""
+    layout = Layout(results=results)
+    done = each(pool, lambda scene: chain_runs(scene, layout), scenes())
+    return {pid for pid, _ in done}, {name: runs for name, (_, runs) in zip(SCENES, done)}
+
+
+def tables(runs: dict[str, dict[int, RunResult]]) -> dict[str, str]:
     """Each scene's study table as the study writes its CSV (report.py: 10 significant
     digits), less the wall times (which no two runs share). Full precision would compare
     round-off: a pipelined and a non-pipelined run of one level differ by ~1e-14 relative
     (measured: longcontact n = 16), presumably the sparse solver's alignment-dependent
     kernels."""
     out = {}
-    for outcome in outcomes:
-        assert outcome.error is None, outcome.error
-        assert sorted(outcome.runs) == list(LEVELS)
-        fields = tuple(outcome.runs[LEVELS[-1]].record.fields)
-        out[outcome.chain.scene.name] = error_table(outcome.runs, fields).drop(columns=["wall_s"]).to_csv(float_format="%.10g")
+    for name, levels in runs.items():
+        assert sorted(levels) == list(LEVELS)
+        fields = tuple(levels[LEVELS[-1]].record.fields)
+        out[name] = error_table(levels, fields).drop(columns=["wall_s"]).to_csv(float_format="%.10g")
     return out
 
 
 @pytest.fixture(scope="module")
 def dask():
     """One real local cluster (2 worker processes) for the tests that kill no worker."""
-    with executor(1, cluster="local:2") as running:
+    with cluster(None, "local:2") as running:
         yield running
 
 
 @pytest.fixture(scope="module")
 def local_tables(tmp_path_factory) -> dict[str, str]:
-    return tables(LocalExecutor(2).run(chains(tmp_path_factory.mktemp("local"))))
+    return tables(study(None, tmp_path_factory.mktemp("local"))[1])
 
 
 def test_a_local_dask_cluster_gives_the_local_tables(dask, local_tables, tmp_path):
-    lines: list[str] = []
     assert len(dask.client.scheduler_info()["workers"]) == 2
-    outcomes = dask.run(chains(tmp_path), lines.append)
-    assert tables(outcomes) == local_tables
-    assert len(lines) == len(SCENES) * len(LEVELS) and all("(Dask)" in line for line in lines)
-    # Every level was run by a worker into the shared results tree, nothing reused.
+    pids, runs = study(dask, tmp_path)
+    assert tables(runs) == local_tables
+    # Every chain ran in a worker process, into the shared results tree, nothing reused.
+    assert os.getpid() not in pids
+    assert not any(run.reused for levels in runs.values() for run in levels.values())
     assert all((tmp_path / s / f"n{n}" / "run.json").is_file() for s in SCENES for n in LEVELS)
 
 
 def test_a_worker_killed_mid_study_ends_complete_or_with_a_clear_error(local_tables, tmp_path):
-    with executor(1, cluster="local:2") as dask:
+    with cluster(None, "local:2") as dask:
         pids = list(dask.client.run(os.getpid).values())
         killed = threading.Event()
 
-        def kill_one(line: str) -> None:
-            if not killed.is_set():  # after the first level: the rest are queued or running
-                killed.set()
-                os.kill(pids[0], signal.SIGKILL)
+        def kill_one() -> None:
+            # After the first level: the rest are queued or running.
+            deadline = time.monotonic() + 120
+            while not list(tmp_path.glob("*/n*/run.json")) and time.monotonic() < deadline:
+                time.sleep(0.02)
+            killed.set()
+            os.kill(pids[0], signal.SIGKILL)
 
-        outcomes = dask.run(chains(tmp_path), kill_one)
+        killer = threading.Thread(target=kill_one)
+        killer.start()
+        try:
+            outcome: dict[str, str] | str = tables(study(dask, tmp_path)[1])
+        except RunError as exc:
+            outcome = str(exc)
+        killer.join()
     assert killed.is_set()
-    errors = [o.error for o in outcomes if o.error]
-    if not errors:  # the scheduler reran the lost tasks on the other (or restarted) worker
-        assert tables(outcomes) == local_tables
+    if isinstance(outcome, dict):  # the scheduler reran the lost tasks on the other (or restarted) worker
+        assert outcome == local_tables
     else:
-        assert all("\n" not in e and "n=" in e for e in errors), errors
+        assert "\n" not in outcome and "Dask task failed" in outcome, outcome
 
 
 @pytest.mark.parametrize("text", ["local", "local:0", "remote:2", "local:x"])
@@ -93,7 +120,7 @@ def test_cluster_flag_must_be_local_with_a_count(text):
 
 def test_scheduler_and_cluster_exclude_each_other():
     with pytest.raises(SceneError, match="not both"):
-        with executor(1, scheduler="tcp://127.0.0.1:1", cluster="local:2"):
+        with cluster("tcp://127.0.0.1:1", "local:2"):
             pass
 
 
@@ -101,12 +128,11 @@ def square(k: int) -> int:
     return k * k
 
 
-def test_map_runs_pieces_side_by_side_in_order_on_both_executors(dask):
-    work = [lambda k=k: square(k) for k in range(5)]
-    assert LocalExecutor(2).map(work) == [0, 1, 4, 9, 16]
-    assert dask.map(work) == [0, 1, 4, 9, 16]
-    with pytest.raises(SceneError, match="local:N"):
-        dask.map([lambda: parse_cluster("bad")])
+def test_each_runs_pieces_side_by_side_in_order_in_this_process_and_on_a_cluster(dask):
+    assert each(None, square, range(5)) == [0, 1, 4, 9, 16]
+    assert each(dask, square, list(range(5))) == [0, 1, 4, 9, 16]
+    with pytest.raises(SceneError, match="local:N"):  # a piece's own error comes back as raised
+        each(dask, parse_cluster, ["bad"])
 
 
 def test_two_workers_running_the_same_levels_at_once_leave_one_complete_result(dask, tmp_path):
@@ -116,16 +142,16 @@ def test_two_workers_running_the_same_levels_at_once_leave_one_complete_result(d
 
     layout = Layout(results=tmp_path)
     scene = load_scene(CASES / "paper.toml")
-    twin = [LevelChain(scene, (2, 4), layout, force=True), LevelChain(scene, (2, 4), layout, force=True)]
-    outcomes = dask.run(twin)
-    assert all(o.error is None and sorted(o.runs) == [2, 4] for o in outcomes)
+    outcomes = each(dask, lambda _: chain_runs(scene, layout, (2, 4), force=True), [0, 1])
+    assert all(sorted(runs) == [2, 4] for _, runs in outcomes)
     for n in (2, 4):
         assert corrupted(tmp_path / "paper" / f"n{n}") is None
     assert not list((tmp_path / "paper").glob(".tmp-*")) and not list((tmp_path / "paper").glob(".old-*"))
-    again = LocalExecutor(1).run([LevelChain(scene, (2, 4), layout)])[0]
-    assert again.error is None and all(run.reused for run in again.runs.values())
+    again = chain_runs(scene, layout, (2, 4))[1]
+    assert sorted(again) == [2, 4] and all(run.reused for run in again.values())
 
 
+@pytest.mark.heavy  # 13 s: `make test-heavy`
 def test_scenes_study_on_a_local_cluster_writes_the_local_csvs(tmp_path):
     """`python -m harness scenes --cluster local:2` on two scenes, levels 2-8: each scene's
     convergence.csv and the summary equal the local run's but for the measurements of the
@@ -175,20 +201,21 @@ def modules_and_profiler() -> tuple[bool, bool]:
 
     import dask as dask_module
 
-    return "harness.studies.stress" in sys.modules, dask_module.config.get("distributed.worker.profile.enabled")
+    return "harness.hard_cases" in sys.modules, dask_module.config.get("distributed.worker.profile.enabled")
 
 
 def test_a_warmed_local_cluster_has_the_harness_imported_and_no_profiler(dask):
-    """What make scale times on a cluster is the study, not the workers' imports; and the
-    workers' statistical profiler (a thread sampling every 10 ms) is off."""
-    dask.warm()
+    """What make scale times on a cluster is the study, not the workers' imports (the modules
+    its caller names); and the workers' statistical profiler (a thread sampling every 10 ms)
+    is off."""
+    dask.warm(["harness.hard_cases"])
     assert set(dask.client.run(modules_and_profiler).values()) == {(True, False)}
 
 
 def test_stress_summaries_are_compared_to_round_off_not_bit_for_bit():
     import pandas as pd
 
-    from harness.studies.scale import same_summary
+    from harness.scale_out import same_summary
 
     table = pd.DataFrame({"case": ["a", "b"], "status": ["converged", "diverged"], "newton": [3, 7],
                           "force": [1.0, 2.5e-6]})

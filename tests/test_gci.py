@@ -10,7 +10,7 @@ import pytest
 
 from harness.gci import SAFETY, observed_order, three_grid
 from harness.record import RunRecord
-from harness.studies.verify import finest_triples, gci_table
+from harness.gci import finest_triples, gci_table
 
 
 def power_law(f0: float, c: float, p: float, h: tuple[float, ...]) -> tuple[float, ...]:

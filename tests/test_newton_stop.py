@@ -14,7 +14,7 @@ from harness.layout import Layout
 from harness.mesh import build_mesh
 from harness.run import run_level
 from harness.scene import load_scene
-from harness.engine import run_chain, runs_of
+from harness.engine import run_levels, runs_of
 
 CASE = Path(__file__).parents[1] / "cases" / "paper.toml"
 RTOL = 1e-9
@@ -25,7 +25,7 @@ def test_the_contraction_stop_is_as_accurate_as_rtol_promises(tmp_path):
     layout = Layout(results=tmp_path)
     levels = (2, 4, 8, 16)
     meshes = {n: build_mesh(scene.geometry, n, layout.meshes_dir(scene.name)).path for n in levels}
-    runs = runs_of(run_chain(scene, meshes, layout, False, lambda s: None))
+    runs = runs_of(run_levels(scene, meshes, layout, progress=lambda s: None))
     stopped = runs[16].record
     last = stopped.newton_iterations
     increments, estimates = stopped.increments, stopped.error_estimates

@@ -217,20 +217,20 @@ def test_a_newton_failure_on_ranks_reads_as_on_one_rank(tmp_path, capsys):
 
 
 @pytest.mark.skipif(bool(mpi_missing()), reason=mpi_missing() or "-")
-@pytest.mark.parametrize("ranks", [3, 5])
+@pytest.mark.parametrize("ranks", [3, pytest.param(5, marks=pytest.mark.heavy)])  # 5 ranks: 12 s
 def test_more_ranks_with_non_zero_dirichlet_data_give_the_one_rank_solution(ranks, tmp_path):
     """The manufactured contact case (non-zero Dirichlet data on Gamma_1): where a rank's
     artificial boundary meets Gamma_1, the start must take its owners' values, or the ranks
     disagree (5-16 % off on 3 ranks before the start was made consistent)."""
-    from harness.executor import mesh_task
     from harness.layout import Layout
+    from harness.mesh import build_mesh
     from harness.run import run_level
 
     layout = Layout(results=tmp_path)
     states = []
     for count in (1, ranks):
         scene = load_scene(CASES / "mms" / "contact.toml", [f"scene.name=r{count}", f"run.ranks={count}"])
-        result = run_level(scene, mesh_task(scene, 8, layout), 8, layout)
+        result = run_level(scene, build_mesh(scene.geometry, 8, layout.meshes_dir(scene.name)).path, 8, layout)
         assert result.record.converged
         states.append(read_state(result.directory / "state.txt"))
     for a, b in zip(*states):
@@ -238,6 +238,7 @@ def test_more_ranks_with_non_zero_dirichlet_data_give_the_one_rank_solution(rank
 
 
 @pytest.mark.skipif(bool(mpi_missing()), reason=mpi_missing() or "-")
+@pytest.mark.heavy  # 38 s: `make test-heavy`
 def test_two_ranks_give_the_one_rank_solution_in_3d(tmp_path):
     results = tmp_path / "results"
     # MUMPS_seq on one rank, and per subdomain on two (paper3d.toml's PETSc solves on one rank).
@@ -254,9 +255,10 @@ def test_two_ranks_give_the_one_rank_solution_in_3d(tmp_path):
 
 
 @pytest.mark.skipif(bool(mpi_missing()), reason=mpi_missing() or "-")
+@pytest.mark.heavy  # 13 s: `make test-heavy`
 def test_the_scale_table_compares_each_rank_count_with_one_rank(tmp_path):
     from harness.layout import Layout
-    from harness.studies.scale import mpi_table
+    from harness.scale_out import mpi_table
 
     table = mpi_table(CASES / "paper3d.toml", (2,), (1, 2), Layout(results=tmp_path))
     one, two = (row for _, row in table.iterrows())

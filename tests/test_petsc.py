@@ -112,6 +112,7 @@ def test_an_options_string_that_is_not_options_is_refused_before_any_run(tmp_pat
         load_scene(CASES / "paper.toml", ['run.petsc_options="pc_type gamg"'])
 
 
+@pytest.mark.heavy  # 30 s: `make test-heavy`
 def test_the_plugin_is_built_once_per_source(tmp_path):
     source = tmp_path / "petsc_solver.cpp"
     source.write_text(petsc_plugin.SOURCE.read_text())

@@ -16,7 +16,7 @@ from harness.fields import read_state
 from harness.layout import Layout
 from harness.mesh import build_mesh
 from harness.scene import load_scene
-from harness.engine import run_chain, runs_of
+from harness.engine import run_levels, runs_of
 
 CASE = Path(__file__).parents[1] / "cases" / "paper.toml"
 LEVELS = (2, 4, 8)
@@ -26,7 +26,7 @@ def chain(root: Path, pipelined: bool, *overrides: str):
     scene = load_scene(CASE, list(overrides))
     layout = Layout(results=root)
     meshes = {n: build_mesh(scene.geometry, n, layout.meshes_dir(scene.name)).path for n in LEVELS}
-    return layout, runs_of(run_chain(scene, meshes, layout, False, lambda s: None, pipelined=pipelined))
+    return layout, runs_of(run_levels(scene, meshes, layout, progress=lambda s: None, pipelined=pipelined))
 
 
 def test_a_pipelined_chain_gives_the_same_solutions_as_one_level_at_a_time(tmp_path):

@@ -1,5 +1,5 @@
 """(e) Slope regression that can fail: a fast study (h = 1/2 ... 1/16 against h = 1/32) must
-reproduce the committed baseline results/paper_fast/ per field: the least-squares slope,
+reproduce the committed baseline tests/gold/paper_fast/ per field: the least-squares slope,
 its standard error (the shape of the error curve), and the error level at h = 1/8 (the
 error constant: a right slope with a wrong constant fails too). Regenerate the baseline
 with `make baseline` only for an intended change of the scheme."""
@@ -16,7 +16,7 @@ from harness.cli import main
 from harness.rates import SlopeFit, slope_fit
 
 ROOT = Path(__file__).parents[1]
-BASELINE = ROOT / "results" / "paper_fast"
+BASELINE = ROOT / "tests" / "gold" / "paper_fast"  # `make baseline` refreshes it
 FIELDS = ("u", "phi", "theta", "total")
 LEVEL_N = 8
 # The study is deterministic up to Newton's stopping test (relative increments 1e-9 after

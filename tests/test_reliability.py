@@ -360,11 +360,12 @@ def test_a_backup_left_by_a_killed_harness_is_restored(capsys, tmp_path):
 # ---- 7, 10: guards -------------------------------------------------------------------------
 
 def test_the_memory_estimate_matches_the_measured_levels():
-    """An upper bound of the measured peaks (results/cost/scaling.csv, VmHWM in MiB), within 20 %."""
+    """An upper bound of the measured peaks (tests/gold/scaling.csv: `make cost`'s table, pinned by
+    `make gold`; VmHWM in MiB), within 20 %."""
     import pandas as pd
 
     effects = ("piezoelectric", "thermal")
-    measured = pd.read_csv(REPO / "results" / "cost" / "scaling.csv").set_index("n")
+    measured = pd.read_csv(REPO / "tests" / "gold" / "scaling.csv").set_index("n")
     for n, dofs in ((64, 66_820), (128, 264_708), (256, 1_053_700)):
         estimated_dofs, need = guards.memory_estimate(4.0, 1.0, n, effects)
         assert estimated_dofs == dofs == measured.loc[n, "dofs"]
@@ -512,13 +513,50 @@ def test_meshing_in_this_process_leaves_the_signal_handlers_in_force(tmp_path):
     """gmsh.initialize() resets SIGTERM and SIGHUP to their defaults behind Python's back: a
     SIGTERM after the first mesh killed the harness outright, temp dirs left behind."""
     from harness import signals
-    from harness.executor import mesh_task
     from harness.layout import Layout
+    from harness.mesh import build_mesh
     from harness.scene import load_scene
 
     with signals.handled():
-        mesh_task(load_scene(PAPER), 2, Layout(results=tmp_path))
+        scene = load_scene(PAPER)
+        build_mesh(scene.geometry, 2, Layout(results=tmp_path).meshes_dir(scene.name))
         assert all(catches(os.getpid(), signum) for signum in (signal.SIGTERM, signal.SIGHUP, signal.SIGINT))
+
+
+MESH_THEN_BROKEN_PIPE = """
+import os, sys, threading
+from pathlib import Path
+from harness.layout import Layout
+from harness.mesh import build_mesh
+from harness.scene import load_scene
+
+scene = load_scene(Path(sys.argv[1]))
+layout = Layout(results=Path(sys.argv[2]))
+where = sys.argv[3]
+mesh = lambda: build_mesh(scene.geometry, 2, layout.meshes_dir(scene.name))
+if where == "thread":
+    worker = threading.Thread(target=mesh)
+    worker.start()
+    worker.join()
+else:
+    mesh()
+read, write = os.pipe()
+os.close(read)
+try:
+    os.write(write, b"x")
+except BrokenPipeError:
+    print("BrokenPipeError")
+"""
+
+
+@pytest.mark.parametrize("where", ["main", "thread"])
+def test_a_write_to_a_closed_pipe_after_meshing_raises_instead_of_killing(where, tmp_path):
+    """gmsh.initialize() also sets SIGPIPE to its default: a later write to a closed pipe
+    killed the process without a word (exit 141; it ended a whole pytest session once a
+    chain had meshed in a thread). Python ignores SIGPIPE and raises BrokenPipeError."""
+    done = subprocess.run([sys.executable, "-c", MESH_THEN_BROKEN_PIPE, str(PAPER), str(tmp_path), where],
+                          cwd=REPO, capture_output=True, text=True, timeout=120)
+    assert done.returncode == 0 and done.stdout.strip() == "BrokenPipeError", (done.returncode, done.stderr[-300:])
 
 
 def test_the_memory_guard_counts_per_solver():

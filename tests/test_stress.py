@@ -11,8 +11,8 @@ import math
 import numpy as np
 import pytest
 
-from harness.studies import stress
-from harness.checks import contact_nodes
+from harness import hard_cases as stress
+from harness.checks import CHECK_FLAGS, contact_nodes, physical_checks
 from harness.contract import Failure
 from harness.errors import RunError
 from harness.record import RunRecord, read_run_json
@@ -80,7 +80,7 @@ def test_case_converges_with_its_checks_or_fails_as_known(suite, case):
         return
     assert row["status"] == "converged", row["note"]
     assert row["note"] == ""
-    failed = {k: row[k] for k in stress.CHECK_FLAGS if not row[k]}
+    failed = {k: row[k] for k in CHECK_FLAGS if not row[k]}
     assert not failed, (failed, {k: row.get(k) for k in (
         "force_imbalance", "force_residual_bound", "max_sigma_nu", "sigma_nu_scale", "sigma_tau_excess", "heat_imbalance",
         "charge_imbalance", "heat_flux_open_error", "charge_flux_open_error")})
@@ -173,7 +173,7 @@ def test_case_converges_from_zero(tmp_path, case):
     result = stress.run_case(stress.HARD / f"{case}.toml", layout, levels=[2], scene=scene)
     row = stress.summary_row(result)
     assert row["status"] == "converged", row["note"]
-    assert all(row[k] for k in stress.CHECK_FLAGS), {k: row[k] for k in stress.CHECK_FLAGS}
+    assert all(row[k] for k in CHECK_FLAGS), {k: row[k] for k in CHECK_FLAGS}
     record = result.last.record
     assert (record.restarted_at > 0) == (case in PRESSED_FROM_ZERO), record.restarted_at
     assert record.newton_iterations <= 25
@@ -218,8 +218,8 @@ def paper_record(**checks) -> RunRecord:
 ])
 def test_each_check_fails_on_a_violation_it_is_meant_to_catch(checks, flag):
     scene = load_scene(stress.PAPER)
-    out = stress.physical_checks(paper_record(**checks), scene)
-    failed = [k for k in stress.CHECK_FLAGS if not out[k]]
+    out = physical_checks(paper_record(**checks), scene)
+    failed = [k for k in CHECK_FLAGS if not out[k]]
     assert failed == ([flag] if flag else [])
     assert out["checks_ok"] == (flag is None)
 
@@ -254,6 +254,6 @@ def test_open_node_fluxes_skip_the_theta_dirichlet_end_of_gamma3(tmp_path):
     # An open node next to a closed one carries charge through the closed Gauss point.
     assert c["max_charge_flux_open_expected"] > 1e-9
     assert c["max_heat_flux_open"] == c["max_heat_flux_open_expected"] == 0.0
-    out = stress.physical_checks(record, load_scene(stress.PAPER, ["contact.gap=1e-9"]))
+    out = physical_checks(record, load_scene(stress.PAPER, ["contact.gap=1e-9"]))
     assert out["charge_flux_open_error"] < 1e-9
     assert out["open_flux_ok"] and out["checks_ok"]

@@ -45,8 +45,8 @@ from typing import Any, Callable, Sequence
 import pandas as pd
 
 from harness import freefem
-from harness.arguments import add_case, add_levels, name_list, positive_int
-from harness.engine import freefem_startup_s, quiet, run_chain, runs_of, timed_meshes
+from harness.arguments import add_case, add_levels, add_memory_override, name_list, positive_int
+from harness.engine import freefem_startup_s, quiet, run_levels, runs_of, timed_meshes
 from harness.errors import HarnessError
 from harness.layout import REPO, Layout
 from harness.record import read_run_json
@@ -54,7 +54,8 @@ from harness.run import WarmStart, run_level
 from harness.scene import Scene, load_scene
 from harness.schema import LINEAR_SOLVERS
 from harness.study import run_study
-from harness.writers import write_csv, write_json, write_text
+from harness.pipeline import Guarded, Plan, run_pipeline
+from harness.writers import markdown_table, write_csv, write_json, write_text
 
 GETFEM_FINEST_S = 11.6  # issue 5: GetFEM + SuperLU, 5 Newton iterations, h = 1/64
 DEFAULT_RESULTS = REPO / "results" / "bench"
@@ -84,7 +85,7 @@ def bench_finest(case: Path, overrides: Sequence[str], levels: Sequence[int], la
     meshes, _ = timed_meshes(scene, levels, layout)
     finest = max(levels)
     below = {n: p for n, p in meshes.items() if n < finest}
-    runs = runs_of(run_chain(scene, below, layout, False, quiet)) if below else {}
+    runs = runs_of(run_levels(scene, below, layout, progress=quiet)) if below else {}
     warm = runs[max(below)].warm_start(meshes[max(below)]) if below else None
     return repeat_level(scene, meshes[finest], finest, layout, warm, repeats, "finest", say)
 
@@ -206,12 +207,10 @@ def markdown(table: pd.DataFrame, meta: dict[str, Any]) -> str:
         f"{meta['repeats']} repetitions each; 1-min load {meta['load_before']:.2f} before, "
         f"{meta['load_after']:.2f} after; {meta['cpus']} CPUs ({meta['cpu']}); levels {meta['levels']}.",
         "",
-        "| measurement | quantity | median | min | max |",
-        "|---|---|---|---|---|",
     ]
-    for _, r in table.iterrows():
-        lines.append(f"| {r['measurement']} | {r['quantity']} | {r['median']:.4g} | {r['min']:.4g} | {r['max']:.4g} |")
-    return "\n".join(lines) + "\n"
+    rows = ([r["measurement"], r["quantity"], f"{r['median']:.4g}", f"{r['min']:.4g}", f"{r['max']:.4g}"]
+            for _, r in table.iterrows())
+    return "\n".join(lines) + "\n" + markdown_table(("measurement", "quantity", "median", "min", "max"), rows)
 
 
 def cpu_name() -> str:
@@ -236,6 +235,7 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
     parser.add_argument("--max-load", type=float, default=1.2, help="wait for a 1-min load below this")
     parser.add_argument("--wait-s", type=float, default=1200, help="at most this long")
     parser.add_argument("--results", type=Path, default=DEFAULT_RESULTS)
+    add_memory_override(parser)
 
 
 def run(args: argparse.Namespace) -> int:
@@ -244,6 +244,15 @@ def run(args: argparse.Namespace) -> int:
 
     scene = load_scene(args.case, args.overrides)
     levels = tuple(args.levels or scene.levels)
+    plan = Plan(args.results, (Guarded(scene, levels),), outputs=(args.results,), ignore_memory=args.ignore_memory)
+    run_pipeline(plan, lambda: measure(args, levels, say), lambda done: report(args, levels, *done))
+    return 0
+
+
+def measure(args: argparse.Namespace, levels: tuple[int, ...],
+            say: Callable[[str], None]) -> tuple[dict[str, list[dict[str, Any]]], float]:
+    """Every measurement asked for (--only), after the load has fallen; the raw samples and
+    the load before."""
     freefem.freefem_version()
     layout = Layout(results=args.results / "runs")
     wanted = args.only
@@ -264,6 +273,12 @@ def run(args: argparse.Namespace) -> int:
         raw["cli"] = bench_cli(args.case, args.overrides, levels, args.repeats, say)
     if "process" in wanted:
         raw["process"] = bench_process(args.case, args.overrides, levels, args.repeats, say)
+    shutil.rmtree(layout.case_dir("bench-sweep"), ignore_errors=True)
+    return raw, load_before
+
+
+def report(args: argparse.Namespace, levels: tuple[int, ...], raw: dict[str, list[dict[str, Any]]],
+           load_before: float) -> None:
     load_after = os.getloadavg()[0]
     table = summarise(raw)
     for alone in ("finest", "cold"):
@@ -279,6 +294,4 @@ def run(args: argparse.Namespace) -> int:
     write_csv(table, args.results / "bench.csv")
     write_text(markdown(table, meta), args.results / "bench.md")
     write_json({"meta": meta, "raw": raw}, args.results / "bench.json")
-    shutil.rmtree(layout.case_dir("bench-sweep"), ignore_errors=True)
     print(markdown(table, meta))
-    return 0

@@ -19,97 +19,45 @@ least-squares slope of each field's error against the finest level, and the stre
 physical checks (harness/checks.py) on every level. A start that fails on
 some level is reported with the level and the reason, not left out.
 Writes branches.csv, branches.md, and each study's convergence.csv / summary.json /
-convergence.png under results/branches/<start>/.
+convergence.png under results/branches/<start>/. Exit status 1 when a start converged but
+failed a physical check.
 """
 
 from __future__ import annotations
 
 import argparse
-import math
-from typing import Any, Sequence
+from typing import Any
 
 import pandas as pd
 
-from harness import executor
-from harness.arguments import add_common, add_jobs, add_levels, layout_of, name_list
-from harness.checks import CHECK_FLAGS, physical_checks
-from harness.errors import RunError, SceneError
-from harness.layout import REPO, Layout
-from harness.report import write_report
-from harness.scene import load_scene
-from harness.study import run_study
-from harness.writers import cell, write_csv, write_text
+from harness.arguments import add_cluster, add_common, add_jobs, add_levels, layout_of, name_list
+from harness.branch_starts import LEVELS, STARTS, branch_row, same_branch, start_scene
+from harness.errors import SceneError
+from harness.executor import cluster, each
+from harness.layout import REPO
+from harness.pipeline import Guarded, Plan, run_pipeline
+from harness.writers import cell, markdown_table, write_csv, write_text
 
-PAPER = REPO / "cases" / "paper.toml"
 RESULTS = REPO / "results" / "branches"
-LEVELS = (2, 4, 8, 16, 32, 64)
-
-STARTS: dict[str, list[str]] = {
-    "zero": [],
-    "pressed": ["scene.coarsest_guess=pressed"],
-    "zero_each": ["scene.initial_guess=zero"],
-    "pressed_each": ["scene.initial_guess=pressed"],
-}
-
-FACTS = ("max_theta", "min_phi", "max_phi", "max_abs_u", "contact_force", "heat_in_contact",
-         "charge_in_contact", "active_measure")
 
 
-def branch_row(start: str, levels: Sequence[int], layout: Layout, jobs: int, force: bool) -> dict[str, Any]:
-    scene = load_scene(PAPER, [f"scene.name={start}", *STARTS[start]])
-    row: dict[str, Any] = {"start": start, "initial_guess": scene.initial_guess,
-                           "coarsest_guess": scene.sections.scene.coarsest_guess}
-    try:
-        study = run_study(scene, tuple(levels), layout, jobs, force)
-    except RunError as exc:
-        return {**row, "status": "failed", "note": str(exc)}
-    write_report(study, layout)
-    finest = study.runs[study.reference].record
-    row.update({"status": "converged", "note": "", "n_finest": study.reference})
-    row.update({key: finest.value(key) for key in FACTS})
-    row["newton_iterations"] = " ".join(str(study.runs[n].record.newton_iterations) for n in sorted(study.runs))
-    for name, fits in study.slopes.items():
-        row[f"slope_{name}"] = fits["all"]
-    # The stress suite's physical checks on every level of the branch.
-    failed = set()
-    for run in study.runs.values():
-        checks = physical_checks(run.record, scene)
-        failed |= {k.removesuffix("_ok") for k in CHECK_FLAGS if not checks[k]}
-    row["checks"] = "pass" if not failed else "FAIL " + " ".join(sorted(failed))
-    return row
-
-
-def same_branch(rows: list[dict[str, Any]]) -> dict[str, str]:
-    """Which starts reached the same solution: contact forces within 1 % (they differ by
-    eight orders of magnitude between the branches found here)."""
-    labels: dict[str, str] = {}
-    found: list[tuple[str, float]] = []
-    for row in rows:
-        force = row.get("contact_force", math.nan)
-        if row["status"] != "converged" or not math.isfinite(force):
-            continue
-        match = next((name for name, f in found if abs(force - f) <= 0.01 * max(abs(f), 1e-300)), None)
-        if match is None:
-            match = row["start"]
-            found.append((match, force))
-        labels[row["start"]] = match
-    return labels
+HEADER = ("start", "branch", "Newton its per level", "max θ [K]", "φ range [V]", "max \\|u\\| [m]",
+          "contact force [N/m]", "heat in Γ3 [W/m]", "charge in Γ3 [C/m]", "active length [m]",
+          "slope u / φ / θ / total", "checks")
 
 
 def markdown(table: pd.DataFrame) -> str:
-    lines = ["| start | branch | Newton its per level | max θ [K] | φ range [V] | max \\|u\\| [m] | contact force [N/m] "
-             "| heat in Γ3 [W/m] | charge in Γ3 [C/m] | active length [m] | slope u / φ / θ / total | checks |",
-             "|---|---|---|---|---|---|---|---|---|---|---|---|"]
+    rows = []
     for row in table.to_dict("records"):
         if row["status"] != "converged":
-            lines.append(f"| {row['start']} | failed | {row['note']} |||||||||")
+            rows.append([row["start"], "failed", row["note"]])
             continue
         slopes = " / ".join(cell(row.get(f"slope_{f}")) for f in ("u", "phi", "theta", "total"))
-        lines.append(f"| {row['start']} | {row['branch']} | {row['newton_iterations']} | {cell(row['max_theta'])} | "
-                     f"[{cell(row['min_phi'])}, {cell(row['max_phi'])}] | {cell(row['max_abs_u'])} | {cell(row['contact_force'])} | "
-                     f"{cell(row['heat_in_contact'])} | {cell(row['charge_in_contact'])} | {cell(row['active_measure'])} | {slopes} | "
-                     f"{row['checks']} |")
-    return "\n".join(lines) + "\n"
+        rows.append([row["start"], row["branch"], row["newton_iterations"], cell(row["max_theta"]),
+                     f"[{cell(row['min_phi'])}, {cell(row['max_phi'])}]", cell(row["max_abs_u"]),
+                     cell(row["contact_force"]), cell(row["heat_in_contact"]), cell(row["charge_in_contact"]),
+                     cell(row["active_measure"]), slopes, row["checks"]])
+    return markdown_table(HEADER, rows)
 
 
 def add_arguments(parser: argparse.ArgumentParser) -> None:
@@ -117,7 +65,7 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
     parser.add_argument("--starts", type=name_list, default=list(STARTS), help=f"starts to run ({', '.join(STARTS)})")
     add_jobs(parser, default=2)
     add_common(parser, results=RESULTS)
-    executor.add_arguments(parser)
+    add_cluster(parser)
 
 
 def run(args: argparse.Namespace) -> int:
@@ -125,14 +73,29 @@ def run(args: argparse.Namespace) -> int:
     unknown = [s for s in args.starts if s not in STARTS]
     if unknown:
         raise SceneError(f"unknown start {unknown[0]!r} (known: {', '.join(STARTS)})")
-    with executor.from_args(args) as pool:  # each start's study a task on a Dask cluster
-        rows = executor.each(pool, lambda start: branch_row(start, args.levels, layout, args.jobs, args.force),
-                             args.starts)
-    labels = same_branch(rows)
-    for row in rows:
-        row["branch"] = labels.get(row["start"], "")
-    table = pd.DataFrame(rows)
-    write_csv(table, args.results / "branches.csv")
-    write_text(markdown(table), args.results / "branches.md")
-    print(markdown(table))
+    plan = Plan(args.results, tuple(Guarded(start_scene(start), tuple(args.levels)) for start in args.starts),
+                scene_dirs=tuple(layout.case_dir(start) for start in args.starts), outputs=(args.results,),
+                nested=True, ignore_memory=args.ignore_memory)
+
+    def runs() -> list[dict[str, Any]]:
+        with cluster(args.scheduler, args.cluster) as pool:  # each start's study a task on a Dask cluster
+            return each(pool, lambda start: branch_row(start, args.levels, layout, args.jobs, args.force), args.starts)
+
+    def report(rows: list[dict[str, Any]]) -> None:
+        labels = same_branch(rows)
+        for row in rows:
+            row["branch"] = labels.get(row["start"], "")
+        table = pd.DataFrame(rows)
+        write_csv(table, args.results / "branches.csv")
+        write_text(markdown(table), args.results / "branches.md")
+        print(markdown(table))
+
+    def verdict(rows: list[dict[str, Any]]) -> str | None:
+        """A start that converged with a failed physical check fails the study (a start that
+        did not converge is a finding of the table, reported with its reason)."""
+        bad = [f"{row['start']} ({row['checks']})" for row in rows
+               if row["status"] == "converged" and row["checks"] != "pass"]
+        return f"physical checks failed on the branch from {', '.join(bad)}" if bad else None
+
+    run_pipeline(plan, runs, report, verdict)
     return 0

@@ -4,46 +4,52 @@ and its slope; exit 1 when the total slope leaves the case's band or a physical 
 from __future__ import annotations
 
 import argparse
-import sys
 
-from harness.arguments import add_case, add_jobs, add_levels, add_scene_options, layout_of, prepared_scene
-from harness.atomic import StudyTransaction
-from harness.contract import ExitCode
-from harness.errors import VerdictError
+from harness.arguments import add_case, add_common, add_effects, add_jobs, add_levels, layout_of
 from harness.layout import Layout
+from harness.pipeline import Guarded, Plan, run_pipeline, scene_of
 from harness.report import format_table, write_report
 from harness.run_checks import failed_checks, print_checks
 from harness.scene import Scene
-from harness.study import run_study
+from harness.study import Study, run_study
 
 
 def add_arguments(parser: argparse.ArgumentParser) -> None:
     add_case(parser)
     add_levels(parser)
     add_jobs(parser)
-    add_scene_options(parser)
+    add_effects(parser)
+    add_common(parser)
 
 
 def run(args: argparse.Namespace) -> int:
-    scene, levels = prepared_scene(args, args.levels, nested=True)
-    return convergence(scene, levels, layout_of(args), args.jobs, args.force)
+    scene = scene_of(args.case, args.overrides, args.effects)
+    convergence(scene, args.levels or scene.levels, layout_of(args), args.jobs, args.force, args.ignore_memory)
+    return 0
 
 
-def convergence(scene: Scene, levels: tuple[int, ...], layout: Layout, jobs: int, force: bool) -> int:
-    with StudyTransaction(layout.case_dir(scene.name)):
-        study = run_study(scene, levels, layout, jobs, force)
+def convergence(scene: Scene, levels: tuple[int, ...], layout: Layout, jobs: int, force: bool,
+                ignore_memory: bool = False) -> Study:
+    plan = Plan(layout.results, (Guarded(scene, levels),), scene_dirs=(layout.case_dir(scene.name),), nested=True,
+                ignore_memory=ignore_memory)
+
+    def report(study: Study) -> None:
         paths = write_report(study, layout)
-    print(format_table(study))
-    failed = failed_checks(print_checks(scene, [study.runs[n] for n in sorted(study.runs)]))
-    for name, fits in study.slopes.items():
-        print(f"slope {name:>5}: {fits['all']:.3f} (all levels), {fits['window']:.3f} (window)")
-    print(f"sweep wall time {study.wall_s:.1f} s; wrote {', '.join(str(p) for p in paths.values())}")
+        print(format_table(study))
+        for name, fits in study.slopes.items():
+            print(f"slope {name:>5}: {fits['all']:.3f} (all levels), {fits['window']:.3f} (window)")
+        print(f"sweep wall time {study.wall_s:.1f} s; wrote {', '.join(str(p) for p in paths.values())}")
+
+    return run_pipeline(plan, lambda: run_study(scene, levels, layout, jobs, force), report,
+                        lambda study: verdict(study))
+
+
+def verdict(study: Study) -> str | None:
+    """The slope's band first, then every level's physical checks (harness/run_checks.py)."""
+    scene = study.scene
+    failed = failed_checks(print_checks(scene, [study.runs[n] for n in sorted(study.runs)], study.solutions))
     low, high = scene.slope_band
     if not study.passed:
-        print(f"error: total slope {study.total_slope:.3f} is outside the band [{low}, {high}] "
-              f"of {scene.source}", file=sys.stderr)
-        return int(ExitCode.VERDICT)
+        return f"total slope {study.total_slope:.3f} is outside the band [{low}, {high}] of {scene.source}"
     print(f"total slope {study.total_slope:.3f} is inside the band [{low}, {high}]: pass")
-    if failed:
-        raise VerdictError(f"{scene.name}: {failed}")
-    return 0
+    return f"{scene.name}: {failed}" if failed else None

@@ -15,7 +15,7 @@ import pandas as pd
 
 from harness.arguments import add_common, level_list, name_list, positive_int
 from harness.crosscheck import TOLERANCE, differences, integral_differences
-from harness.engine import InlineMeshes, quiet, run_chain, runs_of
+from harness.engine import InlineMeshes, quiet, run_levels, runs_of
 from harness.errors import Disagreement, FieldsError, RunError, SceneError
 from harness.faults import check_results_root
 from harness.fields import Fields, read_fields
@@ -100,7 +100,7 @@ def plans_of(case: Path, overrides: list[str], branches: list[str] | None,
 def compare(scene: Scene, start: str, levels: tuple[int, ...], layout: Layout, force: bool,
             figures: Path | None = None) -> list[dict]:
     meshes = InlineMeshes(scene, list(levels), layout)
-    runs = runs_of(run_chain(scene, meshes, layout, force, quiet))
+    runs = runs_of(run_levels(scene, meshes, layout, force=force, progress=quiet))
     material = material_values(layout.material_file(scene.material))
     rows = []
     for n in levels:
@@ -157,7 +157,7 @@ def timing(scene: Scene, start: str, n: int, layout: Layout, repeat: int) -> dic
                    material_values(layout.material_file(scene.material)), meshes[n], start, pressed_depth(scene.table))
     samples: dict[str, list[float]] = {}
     for _ in range(repeat):
-        ours = runs_of(run_chain(scene, meshes, layout, True, quiet, pipelined=False))[n].record
+        ours = runs_of(run_levels(scene, meshes, layout, force=True, progress=quiet, pipelined=False))[n].record
         theirs = run_peer(spec, layout.case_dir(scene.name) / f"getfem_n{n}_timing", 10 * scene.timeout_s)
         add = lambda key, value: samples.setdefault(key, []).append(float(value))  # noqa: E731
         add("wall_s_freefem", ours.wall_s)

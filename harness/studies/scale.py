@@ -13,143 +13,24 @@ are the runs' own.
 from __future__ import annotations
 
 import argparse
-import time
 from pathlib import Path
-from typing import Any, Sequence
 
-import numpy as np
 import pandas as pd
 
-from harness.arguments import level_list
-from harness.atomic import write_atomic
-from harness.errors import RunError
-from harness.executor import LevelChain, LocalExecutor
-from harness.fields import read_state
+from harness.arguments import add_memory_override, level_list
+from harness.hard_cases import case_files
 from harness.layout import REPO, Layout
+from harness.pipeline import Guarded, Plan, run_pipeline
+from harness.scale_out import chain_levels, mpi_table, stress_table
 from harness.scene import load_scene
+from harness.writers import markdown_table, write_text
 
 CASES = REPO / "cases"
 
 
-def mpi_table(case: Path, levels: tuple[int, ...], ranks: Sequence[int], layout: Layout) -> pd.DataFrame:
-    """Each rank count's warm chain up to the finest level; one row per (level, ranks)."""
-    chain_levels = tuple(sorted({*(2 ** k for k in range(1, 12) if 2 ** k <= max(levels)), *levels}))
-    runs: dict[int, Any] = {}
-    for count in ranks:
-        # Ranks factorise their subdomains (MUMPS_seq), whatever the case solves one rank with.
-        scene = load_scene(case, [f"scene.name=scale_{case.stem}_ranks{count}", f"run.ranks={count}",
-                                  'run.linear_solver="mumps"'])
-        outcome = LocalExecutor(1).run([LevelChain(scene, chain_levels, layout, force=True)])[0]
-        if outcome.error:
-            raise RunError(outcome.error)
-        runs[count] = outcome.runs
-    rows = []
-    for n in levels:
-        base = runs[ranks[0]][n]
-        reference = read_state(base.directory / "state.txt")
-        for count in ranks:
-            run = runs[count][n]
-            record = run.record
-            parallel = record.parallel or {}
-            # Per field (state.txt holds them in the record's order): max |a - b| / max |a|.
-            differences = {name: float(np.abs(a - b).max() / max(np.abs(a).max(), 1e-300))
-                           for name, a, b in zip(record.fields, reference, read_state(run.directory / "state.txt"))}
-            per_rank = parallel.get("peak_rss_mb_per_rank", [record.peak_rss_mb])
-            wall = parallel.get("wall", {})
-            rows.append({
-                "n": n, "ranks": count, "dofs": record.dofs,
-                "newton_iterations": record.newton_iterations,
-                "krylov_iterations": " ".join(str(k) for k in (record.linear_iterations or [])[1:]),
-                "factorisations": record.factorisations,
-                "wall_s": record.wall_s,
-                "solve_wall_s": wall.get("total_s", record.wall_s),
-                "factorisation_s": wall.get("factorisation_s", record.factorisation_s),
-                "krylov_s": wall.get("krylov_s", record.solve_s),
-                "peak_rss_mb_max_rank": max(per_rank),
-                "peak_rss_mb_per_rank": " ".join(f"{m:.1f}" for m in per_rank),
-                "memory_vs_1_rank": max(per_rank) / max(base.record.peak_rss_mb or 1.0, 1e-9),
-                # The sequential pass that writes the outputs (launcher.py): assembly, no factorisation.
-                "post_pass_peak_rss_mb": record.post_pass_peak_rss_mb if count > 1 else None,
-                "max_rel_diff_vs_1_rank": max(differences.values()),
-                **{f"rel_diff_{name}": value for name, value in differences.items()},
-                "linear_solver": record.linear_solver,
-            })
-    return pd.DataFrame(rows)
-
-
-# Columns near zero whose round-off is judged against the row's own scale (the one its
-# physical check uses, harness/checks.py): max sigma_nu is -1e-7 N/m^2 where the contact
-# pressure is 100, and moves by 2e-12 between two runs of the 3D unstructured case.
-ROW_SCALES = {"max_sigma_nu": "sigma_nu_scale"}
-
-
-def same_summary(a: pd.DataFrame, b: pd.DataFrame, rtol: float = 1e-5, atol: float = 1e-12) -> bool:
-    """Equal stress summaries: text columns exactly, numbers to rtol/atol (ROW_SCALES' columns
-    to 1e-9 of their row's scale). Not bit for bit: the unstructured cases are not
-    bit-reproducible across processes (gmsh's 2D mesh), nor is a level pipelined or not
-    (round-off of the sparse solver's kernels), which moves near-zero figures."""
-    if list(a.columns) != list(b.columns) or len(a) != len(b):
-        return False
-    for column in a.columns:
-        x, y = a[column], b[column]
-        if pd.api.types.is_numeric_dtype(x) and pd.api.types.is_numeric_dtype(y):
-            u, v = x.to_numpy(float), y.to_numpy(float)
-            scale = ROW_SCALES.get(column)
-            floor = np.maximum(atol, 1e-9 * np.abs(a[scale].to_numpy(float))) if scale in a.columns else atol
-            same = (np.abs(u - v) <= floor + rtol * np.abs(v)) | (np.isnan(u) & np.isnan(v))
-            if not same.all():
-                return False
-        elif not x.astype(str).equals(y.astype(str)):
-            return False
-    return True
-
-
-def stress_table(levels: tuple[int, ...], clusters: Sequence[str], repeats: int, root: Path) -> pd.DataFrame:
-    """The stress suite (cases/hard/, each case a chain, every run forced) in this process as
-    by default, and on each Dask cluster of `clusters`, `repeats` times each: medians of the
-    wall time, the cluster's start-up (scheduler, workers, their imports) timed apart, and
-    whether every summary equals the default's but for the machine's measurements."""
-    from harness import executor as executors
-    from harness.studies.stress import case_cost, case_files, run_case, summary_row
-
-    rows, summaries = [], {}
-    for how in (None, *clusters):
-        label = f"dask {how}" if how else "default (this process)"
-        layout = Layout(results=root / (how or "default").replace(":", "-"))
-        start = time.perf_counter()
-        with executors.from_args(argparse.Namespace(scheduler=None, cluster=how)) as pool:
-            if pool is not None:
-                pool.warm()
-            startup = time.perf_counter() - start
-            walls, tables = [], []
-            for _ in range(repeats):
-                start = time.perf_counter()
-                results = executors.each(pool, lambda case: run_case(case, layout, True, levels or None),
-                                         case_files([]), cost=lambda case: case_cost(case, levels or None))
-                walls.append(time.perf_counter() - start)
-                table = pd.DataFrame([summary_row(result) for result in results])
-                measured = [c for c in table.columns if "wall" in c or "rss" in c]
-                tables.append(table.drop(columns=measured).replace(str(layout.results), "<results>", regex=True))
-        summaries[label] = tables
-        rows.append({"executor": label, "cases": len(results), "levels": " ".join(map(str, levels)) or "the cases'",
-                     "repeats": repeats, "startup_s": startup, "wall_s_median": float(np.median(walls)),
-                     "wall_s_min": min(walls), "wall_s_max": max(walls),
-                     "whole_s": startup + float(np.median(walls))})
-    table = pd.DataFrame(rows)
-    first = summaries["default (this process)"][0]
-    table["summary_equal_to_default"] = [all(same_summary(first, t) for t in tables) for tables in summaries.values()]
-    table["median_vs_default"] = table["wall_s_median"] / table["wall_s_median"].iloc[0]
-    single = table[table["executor"] == "dask local:1"]
-    if len(single):  # the issue's single-worker time: the same cluster machinery with one worker
-        table["median_vs_local_1"] = table["wall_s_median"] / single["wall_s_median"].iloc[0]
-        table["whole_vs_local_1"] = table["whole_s"] / single["whole_s"].iloc[0]
-    return table
-
-
 def markdown(table: pd.DataFrame) -> str:
     cells = [[f"{v:.4g}" if isinstance(v, float) else str(v) for v in row] for row in table.itertuples(index=False)]
-    lines = ["| " + " | ".join(table.columns) + " |", "|" + "---|" * len(table.columns)]
-    return "\n".join(lines + ["| " + " | ".join(row) + " |" for row in cells]) + "\n"
+    return markdown_table(list(table.columns), cells)
 
 
 def add_arguments(parser: argparse.ArgumentParser) -> None:
@@ -162,25 +43,38 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
                         default=("local:1", "local:2"), help="the Dask clusters the stress suite is timed on")
     parser.add_argument("--stress-repeats", type=int, default=5, help="timed runs of the stress suite per executor")
     parser.add_argument("--results", type=Path, default=Layout().results, help="results root")
+    add_memory_override(parser)
 
 
 def run(args: argparse.Namespace) -> int:
     out = args.results / "scale"
-    out.mkdir(parents=True, exist_ok=True)
     work = Layout(results=out / "runs")
-    mpi = mpi_table(CASES / "paper.toml", args.mpi_levels, (1, 2), work)
-    mpi3d = mpi_table(CASES / "paper3d.toml", args.mpi_3d_levels, (1, 2), work) if args.mpi_3d_levels else None
-    study = stress_table(args.stress_levels, args.clusters, args.stress_repeats, out / "runs" / "stress")
-    write_atomic(out / "mpi.csv", mpi.to_csv(index=False, float_format="%.6g"))
-    if mpi3d is not None:
-        write_atomic(out / "mpi3d.csv", mpi3d.to_csv(index=False, float_format="%.6g"))
-    write_atomic(out / "stress.csv", study.to_csv(index=False, float_format="%.6g"))
-    in_3d = "" if mpi3d is None else "\n## One 3D solve on 1 and 2 MPI ranks (paper3d)\n\n" + markdown(mpi3d)
-    write_atomic(out / "scale.md", "## One solve on 1 and 2 MPI ranks (paper scene)\n\n" + markdown(mpi) + in_3d
-                 + "\n## The stress suite in this process and on a Dask cluster\n\n" + markdown(study))
-    print(markdown(mpi))
-    if mpi3d is not None:
-        print(markdown(mpi3d))
-    print(markdown(study))
-    print(f"wrote {out}/mpi.csv, {'mpi3d.csv, ' if mpi3d is not None else ''}stress.csv, scale.md")
+    on_ranks = ['run.linear_solver="mumps"']  # as mpi_table runs them
+    guarded = [Guarded(load_scene(CASES / "paper.toml", on_ranks), chain_levels(args.mpi_levels))]
+    if args.mpi_3d_levels:
+        guarded.append(Guarded(load_scene(CASES / "paper3d.toml", on_ranks), chain_levels(args.mpi_3d_levels)))
+    guarded += [Guarded(load_scene(case), tuple(args.stress_levels)) for case in case_files([])]
+    plan = Plan(args.results, tuple(guarded), outputs=(out,), ignore_memory=args.ignore_memory)
+
+    def runs() -> tuple[pd.DataFrame, pd.DataFrame | None, pd.DataFrame]:
+        mpi = mpi_table(CASES / "paper.toml", args.mpi_levels, (1, 2), work)
+        mpi3d = mpi_table(CASES / "paper3d.toml", args.mpi_3d_levels, (1, 2), work) if args.mpi_3d_levels else None
+        return mpi, mpi3d, stress_table(args.stress_levels, args.clusters, args.stress_repeats, out / "runs" / "stress")
+
+    def report(tables: tuple[pd.DataFrame, pd.DataFrame | None, pd.DataFrame]) -> None:
+        mpi, mpi3d, study = tables
+        write_text(mpi.to_csv(index=False, float_format="%.6g"), out / "mpi.csv")
+        if mpi3d is not None:
+            write_text(mpi3d.to_csv(index=False, float_format="%.6g"), out / "mpi3d.csv")
+        write_text(study.to_csv(index=False, float_format="%.6g"), out / "stress.csv")
+        in_3d = "" if mpi3d is None else "\n## One 3D solve on 1 and 2 MPI ranks (paper3d)\n\n" + markdown(mpi3d)
+        write_text("## One solve on 1 and 2 MPI ranks (paper scene)\n\n" + markdown(mpi) + in_3d
+                   + "\n## The stress suite in this process and on a Dask cluster\n\n" + markdown(study), out / "scale.md")
+        print(markdown(mpi))
+        if mpi3d is not None:
+            print(markdown(mpi3d))
+        print(markdown(study))
+        print(f"wrote {out}/mpi.csv, {'mpi3d.csv, ' if mpi3d is not None else ''}stress.csv, scale.md")
+
+    run_pipeline(plan, runs, report)
     return 0

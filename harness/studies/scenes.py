@@ -14,11 +14,12 @@ from typing import Any
 
 import pandas as pd
 
-from harness import executor
-from harness.arguments import add_common, add_levels, layout_of
+from harness.arguments import add_cluster, add_common, add_levels, layout_of
+from harness.executor import cluster, each
 from harness.layout import REPO, Layout
+from harness.pipeline import Guarded, Plan, run_pipeline
 from harness.report import write_report
-from harness.scene import load_scene
+from harness.scene import Scene, load_scene
 from harness.study import NORMED_FIELDS, Study, run_study
 from harness.writers import write_csv
 
@@ -47,27 +48,34 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
     parser.add_argument("--cases", type=Path, default=REPO / "cases", help="folder of scene files")
     add_levels(parser, what="each scene's own")
     add_common(parser)
-    executor.add_arguments(parser)
+    add_cluster(parser)
 
 
-def scene_study(case: Path, levels: tuple[int, ...], layout: Layout, force: bool) -> Study:
+def scene_study(scene: Scene, levels: tuple[int, ...], layout: Layout, force: bool) -> Study:
     """One scene's study (a task of its own on a cluster)."""
-    scene = load_scene(case)
     print(f"== {scene.name}: {', '.join(scene.effects)}", file=sys.stderr, flush=True)
     return run_study(scene, levels or scene.levels, layout, jobs=1, force=force)
 
 
 def run(args: argparse.Namespace) -> int:
     layout = layout_of(args)
-    rows = []
-    with executor.from_args(args) as pool:  # the scenes side by side on a Dask cluster
-        studies = executor.each(pool, lambda case: scene_study(case, args.levels, layout, args.force),
-                                sorted(args.cases.glob("*.toml")))
-    for study in studies:
-        write_report(study, layout)
-        rows.append(scene_row(study))
-    table = pd.DataFrame(rows)
-    out = write_csv(table, layout.results / "scenes" / "summary.csv")
-    print(table.to_string(index=False, float_format=lambda v: f"{v:.4g}"))
-    print(f"wrote {out}")
+    scenes = [load_scene(case) for case in sorted(args.cases.glob("*.toml"))]
+    out = layout.results / "scenes"
+    plan = Plan(layout.results, tuple(Guarded(scene, args.levels or ()) for scene in scenes),
+                scene_dirs=tuple(layout.case_dir(scene.name) for scene in scenes), outputs=(out,), nested=True,
+                ignore_memory=args.ignore_memory)
+
+    def runs() -> list[Study]:
+        with cluster(args.scheduler, args.cluster) as pool:  # the scenes side by side on a Dask cluster
+            return each(pool, lambda scene: scene_study(scene, args.levels, layout, args.force), scenes)
+
+    def report(studies: list[Study]) -> None:
+        for study in studies:
+            write_report(study, layout)
+        table = pd.DataFrame([scene_row(study) for study in studies])
+        written = write_csv(table, out / "summary.csv")
+        print(table.to_string(index=False, float_format=lambda v: f"{v:.4g}"))
+        print(f"wrote {written}")
+
+    run_pipeline(plan, runs, report)
     return 0

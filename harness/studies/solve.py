@@ -7,12 +7,12 @@ import argparse
 from pathlib import Path
 from typing import Any
 
-from harness.arguments import add_case, add_scene_options, layout_of, positive_int, prepared_scene
-from harness.engine import InlineMeshes, quiet, run_chain, runs_of
-from harness.errors import VerdictError
+from harness.arguments import add_case, add_common, add_effects, layout_of, positive_int
+from harness.engine import InlineMeshes, quiet, run_levels, runs_of
 from harness.layout import Layout
+from harness.pipeline import Guarded, Plan, run_pipeline, scene_of
 from harness.record import RunRecord
-from harness.run import check_solver_files
+from harness.run import RunResult, check_solver_files
 from harness.run_checks import failed_checks, print_checks
 from harness.scene import Scene
 
@@ -20,26 +20,37 @@ from harness.scene import Scene
 def add_arguments(parser: argparse.ArgumentParser) -> None:
     add_case(parser)
     parser.add_argument("--n", type=positive_int, required=True, help="level n = 1/h")
-    add_scene_options(parser)
+    add_effects(parser)
+    add_common(parser)
 
 
 def run(args: argparse.Namespace) -> int:
-    scene, (n,) = prepared_scene(args, (args.n,))
-    return solve(scene, n, layout_of(args), args.force)
-
-
-def solve(scene: Scene, n: int, layout: Layout, force: bool) -> int:
-    check_solver_files(scene, layout)
-    # Warm-started: the case's levels below n first, each from the one before (cached when
-    # unchanged), pipelined as in a convergence study.
-    below = sorted(level for level in scene.levels if level < n) if scene.initial_guess == "coarser" else []
-    meshes = InlineMeshes(scene, [*below, n], layout)
-    result = runs_of(run_chain(scene, meshes, layout, force, quiet))[n]
-    print(describe_run(scene.name, result.record, result.directory, result.reused))
-    failed = failed_checks(print_checks(scene, [result]))
-    if failed:
-        raise VerdictError(f"{scene.name} n={n}: {failed}")
+    scene = scene_of(args.case, args.overrides, args.effects)
+    solve(scene, args.n, layout_of(args), args.force, args.ignore_memory)
     return 0
+
+
+def solve(scene: Scene, n: int, layout: Layout, force: bool, ignore_memory: bool = False) -> RunResult:
+    """One level; it writes its level dir alone (swapped in whole, harness/run.py), so the
+    pipeline's transaction owns nothing."""
+    plan = Plan(layout.results, (Guarded(scene, (n,)),), ignore_memory=ignore_memory)
+
+    def runs() -> RunResult:
+        check_solver_files(scene, layout)
+        # Warm-started: the case's levels below n first, each from the one before (cached when
+        # unchanged), pipelined as in a convergence study.
+        below = sorted(level for level in scene.levels if level < n) if scene.initial_guess == "coarser" else []
+        meshes = InlineMeshes(scene, [*below, n], layout)
+        return runs_of(run_levels(scene, meshes, layout, force=force, progress=quiet))[n]
+
+    def report(result: RunResult) -> None:
+        print(describe_run(scene.name, result.record, result.directory, result.reused))
+
+    def verdict(result: RunResult) -> str | None:
+        failed = failed_checks(print_checks(scene, [result]))
+        return f"{scene.name} n={n}: {failed}" if failed else None
+
+    return run_pipeline(plan, runs, report, verdict)
 
 
 def describe_run(case: str, record: RunRecord, directory: Path, reused: bool) -> str:

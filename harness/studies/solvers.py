@@ -30,15 +30,16 @@ from typing import Any, Callable
 
 import pandas as pd
 
-from harness.arguments import name_list, positive_int
-from harness.engine import quiet, run_chain, runs_of, timed_meshes
+from harness.arguments import add_memory_override, name_list, positive_int
+from harness.engine import quiet, run_levels, runs_of, timed_meshes
 from harness.errors import RunError
 from harness.layout import REPO, Layout
 from harness.petsc_plugin import MULTIGRID, MUMPS_LU, field_split_options
+from harness.pipeline import Guarded, Plan, run_pipeline
 from harness.run import run_level
 from harness.scene import load_scene
 from harness.unknowns import Unknowns
-from harness.writers import write_csv, write_text
+from harness.writers import markdown_table, write_csv, write_text
 
 CASES = REPO / "cases"
 DEFAULT_RESULTS = REPO / "results" / "solvers"
@@ -84,7 +85,7 @@ def measure(case: str, n: int, name: str, repeats: int, layout: Layout,
     try:
         meshes, _ = timed_meshes(scene, levels, layout)
         below = {m: p for m, p in meshes.items() if m < n}
-        runs = runs_of(run_chain(scene, below, layout, False, quiet)) if below else {}
+        runs = runs_of(run_levels(scene, below, layout, progress=quiet)) if below else {}
         warm = runs[max(below)].warm_start(meshes[max(below)]) if below else None
         records = []
         for i in range(repeats):
@@ -121,32 +122,32 @@ def rank_row(case: str, n: int, ranks: int, layout: Layout, say: Callable[[str],
 def rank_markdown(table: pd.DataFrame) -> str:
     lines = ["# Krylov iterations against MPI ranks (python -m harness solvers --ranks)", "",
              "One-level RAS, MUMPS_seq per subdomain, from zero; 1 rank: the sequential scheme (a full "
-             "factorisation as GMRES's preconditioner). Oversubscribed past 2 ranks (times not comparable).", "",
-             "| scene | n | ranks | status | Newton its | Krylov its per step | max per step |",
-             "|---|---|---|---|---|---|---|"]
+             "factorisation as GMRES's preconditioner). Oversubscribed past 2 ranks (times not comparable).", ""]
+    rows = []
     for _, r in table.iterrows():
         its = r.get("krylov_iterations", "") if r["status"] == "ok" else ""
         top = int(r["max_krylov_per_step"]) if r["status"] == "ok" else ""
         newton = int(r["newton_iterations"]) if r["status"] == "ok" else ""
-        lines.append(f"| {r['scene']} | {r['n']} | {r['ranks']} | {r['status']} | {newton} | {its} | {top} |")
-    return "\n".join(lines) + "\n"
+        rows.append([r["scene"], r["n"], r["ranks"], r["status"], newton, its, top])
+    return "\n".join(lines) + "\n" + markdown_table(
+        ("scene", "n", "ranks", "status", "Newton its", "Krylov its per step", "max per step"), rows)
 
 
 def markdown(table: pd.DataFrame) -> str:
     lines = ["# Solver table (python -m harness solvers)", "",
              "Medians of the repeats of each level, run alone from the chain below it. Times in seconds,",
-             "memory in MiB (FreeFEM's VmHWM). set-up: factorisation or preconditioner set-up.", "",
-             "| scene | n | dofs | solver | status | wall | bulk assembly | set-up | solve | Newton | peak MiB "
-             "| Newton its | Krylov its per step |",
-             "|---|---|---|---|---|---|---|---|---|---|---|---|---|"]
+             "memory in MiB (FreeFEM's VmHWM). set-up: factorisation or preconditioner set-up.", ""]
+    rows = []
     for _, r in table.iterrows():
         if r["status"] != "ok":
-            lines.append(f"| {r['scene']} | {r['n']} | | {r['solver']} | {r['status']} | | | | | | | | |")
+            rows.append([r["scene"], r["n"], "", r["solver"], r["status"], *[""] * 8])
             continue
-        lines.append(f"| {r['scene']} | {r['n']} | {int(r['dofs']):,} | {r['solver']} | ok | {r['wall_s']:.2f} "
-                     f"| {r['bulk_assembly_s']:.2f} | {r['factorisation_s']:.2f} | {r['solve_s']:.2f} "
-                     f"| {r['newton_s']:.2f} | {r['peak_rss_mb']:,.0f} | {int(r['newton_iterations'])} "
-                     f"| {r['linear_iterations']} |")
+        rows.append([r["scene"], r["n"], f"{int(r['dofs']):,}", r["solver"], "ok", f"{r['wall_s']:.2f}",
+                     f"{r['bulk_assembly_s']:.2f}", f"{r['factorisation_s']:.2f}", f"{r['solve_s']:.2f}",
+                     f"{r['newton_s']:.2f}", f"{r['peak_rss_mb']:,.0f}", int(r["newton_iterations"]),
+                     r["linear_iterations"]])
+    lines.append(markdown_table(("scene", "n", "dofs", "solver", "status", "wall", "bulk assembly", "set-up", "solve",
+                                 "Newton", "peak MiB", "Newton its", "Krylov its per step"), rows).rstrip("\n"))
     options = {r["solver"]: r["options"] for _, r in table.iterrows() if r["options"]}
     lines += ["", "PETSc options (run.petsc_options):", ""]
     lines += [f"- `{name}`: `{text}`" for name, text in options.items()]
@@ -163,6 +164,7 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
     parser.add_argument("--ranks", type=lambda t: [positive_int(x) for x in t.split(",")], default=None,
                         help="comma-separated rank counts: the rank table alone (e.g. 1,2,4,8)")
     parser.add_argument("--results", type=Path, default=DEFAULT_RESULTS)
+    add_memory_override(parser)
 
 
 def run(args: argparse.Namespace) -> int:
@@ -170,19 +172,29 @@ def run(args: argparse.Namespace) -> int:
         print(text, file=sys.stderr, flush=True)
 
     layout = Layout(results=args.results / "runs")
+    points = [args.rank_point] if args.ranks else args.points
+    guarded = tuple(Guarded(scene, tuple(m for m in scene.levels if m < n) + (n,))
+                    for scene, n in ((load_scene(CASES / f"{case}.toml"), n) for case, n in points))
+    plan = Plan(args.results, guarded, outputs=(args.results,), ignore_memory=args.ignore_memory)
     if args.ranks:
         # More ranks than cores: OpenMPI refuses them unless told (the counts are what is measured).
         os.environ.setdefault("OMPI_MCA_rmaps_base_oversubscribe", "1")
         case, n = args.rank_point
-        ranks = pd.DataFrame([rank_row(case, n, count, layout, say) for count in args.ranks])
-        write_csv(ranks, args.results / "ranks.csv")
-        write_text(rank_markdown(ranks), args.results / "ranks.md")
-        print(rank_markdown(ranks))
-        return 0
-    rows = [measure(case, n, name, args.repeats, layout, say) for case, n in args.points for name in args.only]
-    table = pd.DataFrame(rows)
-    write_csv(table, args.results / "solvers.csv")
-    write_text(markdown(table), args.results / "solvers.md")
-    print(markdown(table))
-    return 0
 
+        def rank_report(ranks: pd.DataFrame) -> None:
+            write_csv(ranks, args.results / "ranks.csv")
+            write_text(rank_markdown(ranks), args.results / "ranks.md")
+            print(rank_markdown(ranks))
+
+        run_pipeline(plan, lambda: pd.DataFrame([rank_row(case, n, count, layout, say) for count in args.ranks]),
+                     rank_report)
+        return 0
+
+    def report(table: pd.DataFrame) -> None:
+        write_csv(table, args.results / "solvers.csv")
+        write_text(markdown(table), args.results / "solvers.md")
+        print(markdown(table))
+
+    run_pipeline(plan, lambda: pd.DataFrame([measure(case, n, name, args.repeats, layout, say)
+                                             for case, n in args.points for name in args.only]), report)
+    return 0

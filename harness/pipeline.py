@@ -1,0 +1,101 @@
+"""The one study pipeline: guards -> transaction -> runs -> report -> verdict.
+
+Every study (harness/studies/) is this call with its own three functions:
+
+    run_pipeline(plan, runs=..., report=..., verdict=...)
+
+- guards, before anything is meshed or run: the results folder can hold results, every
+  scene's warnings are printed, its levels are nested (when the study compares levels),
+  its finest levels fit in memory (unless overridden), and its meshes fit on the disk;
+- the transaction (harness/atomic.py): the directories the study writes hold its earlier
+  complete output or its new one, never a mix, whatever fails or interrupts it;
+- runs and report inside the transaction, the report written only when the runs finished;
+- the verdict after it: a failure message makes the command exit 1 (VERDICT) with that
+  one `error:` line, after the report is safely written.
+"""
+
+from __future__ import annotations
+
+import sys
+from dataclasses import dataclass
+from pathlib import Path
+from typing import Callable, Sequence, TypeVar
+
+from harness.atomic import StudyTransaction
+from harness.errors import VerdictError
+from harness.faults import check_results_root
+from harness.guards import check_memory, check_nested, geometry_depth, mesh_file_bytes, need_disk
+from harness.scene import Scene, load_scene
+
+R = TypeVar("R")
+
+
+@dataclass(frozen=True)
+class Guarded:
+    """A scene a study will run, and its levels (the scene's own when empty)."""
+
+    scene: Scene
+    levels: tuple[int, ...] = ()
+
+    @property
+    def chosen(self) -> tuple[int, ...]:
+        return tuple(self.levels or self.scene.levels)
+
+
+@dataclass(frozen=True)
+class Plan:
+    """What a study guards and owns. `results`: the root it writes under; `scene_dirs`: the
+    scene directories it writes a convergence report into; `outputs`: the directories whose
+    every file is its (tables, Markdown, plots); `nested`: whether it compares levels (a
+    convergence study), so they must be nested; `ignore_memory`: the memory guard's override."""
+
+    results: Path
+    guarded: tuple[Guarded, ...] = ()
+    scene_dirs: tuple[Path, ...] = ()
+    outputs: tuple[Path, ...] = ()
+    nested: bool = False
+    ignore_memory: bool = False
+
+
+def scene_of(case: Path, overrides: Sequence[str] = (), effects: Sequence[str] | None = None) -> Scene:
+    """The case with its overrides and, when given, its effects replaced by `effects`."""
+    overrides = list(overrides)
+    if effects is not None:
+        overrides.append("scene.effects=" + repr(list(effects)).replace("'", '"'))
+    return load_scene(case, overrides)
+
+
+def check_guards(plan: Plan) -> None:
+    """Every guard of the plan, before anything is meshed or run (harness/guards.py)."""
+    check_results_root(plan.results)
+    mesh_bytes = 0
+    for item in plan.guarded:
+        scene, levels = item.scene, item.chosen
+        for warning in scene.warnings:
+            print(f"warning: {warning}", file=sys.stderr)
+        if plan.nested:
+            check_nested(levels)
+        if not plan.ignore_memory:
+            check_memory(scene.geometry.width, scene.geometry.height, levels, scene.effects, scene.element,
+                         depth=geometry_depth(scene.geometry), factorises=scene.factorises,
+                         multigrid=scene.multigrid_levels > 0)
+        mesh_bytes += sum(mesh_file_bytes(scene.geometry, n) for n in levels)
+    # The meshes are the one part of a study's output whose size is known before it runs: a
+    # disk that cannot hold them cannot hold the study (each mesh is checked again when made).
+    nearest = next((p for p in [plan.results, *plan.results.parents] if p.is_dir()), None)
+    if nearest is not None and mesh_bytes:
+        need_disk(nearest, mesh_bytes, "the study's meshes")
+
+
+def run_pipeline(plan: Plan, runs: Callable[[], R], report: Callable[[R], object],
+                 verdict: Callable[[R], str | None] = lambda _: None) -> R:
+    """Guards, then the runs and the report inside one transaction, then the verdict: a
+    message from `verdict` is raised as a VerdictError (exit 1), the report already written."""
+    check_guards(plan)
+    with StudyTransaction(*plan.scene_dirs, outputs=plan.outputs):
+        result = runs()
+        report(result)
+    failure = verdict(result)
+    if failure:
+        raise VerdictError(failure)
+    return result

@@ -1,0 +1,85 @@
+"""Verification beyond self-convergence (issue 6), the library of `make verify`
+(harness/studies/verify.py): the manufactured cases' true errors per level, field and norm
+(cases/mms/*.toml, harness/mms.py) and their fitted slopes against the accepted bands."""
+
+from __future__ import annotations
+
+import math
+from typing import Sequence
+
+import pandas as pd
+
+from harness.engine import InlineMeshes, Progress, run_levels, runs_of, stderr_line
+from harness.errors import RunError
+from harness.freefem import freefem_version
+from harness.layout import REPO, Layout
+from harness.rates import slope_fit
+from harness.run import check_solver_files
+from harness.scene import Scene
+
+MMS_CASES = {"bulk": REPO / "cases" / "mms" / "bulk.toml", "contact": REPO / "cases" / "mms" / "contact.toml"}
+MMS_LEVELS = (4, 8, 16, 32)
+# The 3D cases (issue 12) on their own levels: h = 1/32 of the 2x1x1 box is ~350,000 dofs.
+MMS_CASES_3D = {"bulk3d": REPO / "cases" / "mms" / "bulk3d.toml", "contact3d": REPO / "cases" / "mms" / "contact3d.toml"}
+MMS_LEVELS_3D = (4, 8, 16)
+EXPECTED = {"L2": 2.0, "H1": 1.0}  # P1 on a smooth solution
+# Accepted least-squares slopes from h = 1/4 on: the expected order -0.1/+0.1 in L2 and
+# -0.05/+0.05 in the H1 seminorm (measured 1.95-1.99 and 1.00-1.01 over 1/4 ... 1/16, the
+# deficit in L2 being the coarsest level's pre-asymptotic error); a wrong sign or factor
+# anywhere makes some error stagnate (slope ~0: tests/test_mms.py's mutations).
+BANDS = {"L2": (1.9, 2.1), "H1": (0.95, 1.05)}
+# 3D over 1/4 ... 1/16, one level fewer and coarser: u's L2 slope is 1.86-1.89 there (last
+# pairs 1.92-1.94, rising), the other fields' 1.98-2.00; the L2 band starts at 1.8.
+BANDS_3D = {"L2": (1.8, 2.1), "H1": (0.95, 1.05)}
+
+
+def band(case: str, norm: str) -> tuple[float, float]:
+    return (BANDS_3D if case in MMS_CASES_3D else BANDS)[norm]
+
+
+def mms_errors(scene: Scene, levels: Sequence[int], layout: Layout, jobs: int = 2, force: bool = False,
+               progress: Progress = stderr_line) -> pd.DataFrame:
+    """One row per level, field and norm: the error FreeFEM measured against the exact field,
+    and the exact field's own norm (run.json's mms_errors, mms_norms)."""
+    if not scene.manufactured:
+        raise RunError(f"{scene.source} has no [manufactured] solution")
+    check_solver_files(scene, layout)
+    freefem_version()
+    meshes = InlineMeshes(scene, levels, layout).made()
+    runs = runs_of(run_levels(scene, meshes, layout, force=force, progress=progress,
+                              chain=scene.initial_guess == "coarser", jobs=jobs))
+    rows = []
+    for n, run in sorted(runs.items()):
+        errors, norms = run.record.mms_errors, run.record.mms_norms
+        if not isinstance(errors, dict) or not isinstance(norms, dict):
+            raise RunError(f"{run.directory}/run.json has no mms_errors/mms_norms: the scheme did not "
+                           "run the manufactured solution (freefem/mms.idp, IFMACRO(MMS))")
+        for field in scene.fields:
+            for norm in EXPECTED:
+                rows.append({"n": n, "h": 1.0 / n, "field": field, "norm": norm,
+                             "error": float(errors[field][norm]), "exact_norm": float(norms[field][norm]),
+                             "newton_iterations": run.record.newton_iterations})
+    table = pd.DataFrame(rows)
+    table["relative_error"] = table["error"] / table["exact_norm"]
+    return table
+
+
+def mms_rates(errors: pd.DataFrame) -> pd.DataFrame:
+    """One row per (case, field, norm): the fitted slope and its standard error over all
+    levels, the last pairwise order, and the finest level's error."""
+    rows = []
+    for (case, field, norm), group in errors.groupby(["case", "field", "norm"], sort=False):
+        group = group.sort_values("h", ascending=False)
+        fit = slope_fit(group["h"], group["error"])
+        e, h = group["error"].to_numpy(), group["h"].to_numpy()
+        last_order = math.log(e[-2] / e[-1]) / math.log(h[-2] / h[-1]) if len(e) > 1 else math.nan
+        rows.append({
+            "case": case, "field": field, "norm": norm, "expected": EXPECTED[norm],
+            "slope": fit.slope, "slope_stderr": fit.stderr, "last_pair_order": last_order,
+            "n_finest": int(group["n"].iloc[-1]), "err_finest": e[-1],
+            "rel_err_finest": group["relative_error"].iloc[-1], "levels": len(e),
+            "within_band": bool(band(case, norm)[0] <= fit.slope <= band(case, norm)[1]),
+        })
+    return pd.DataFrame(rows)
+
+
