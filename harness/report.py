@@ -6,9 +6,12 @@ import os
 from pathlib import Path
 from typing import Any
 
+import pandas as pd
+
 from harness.atomic import sibling_temp
 from harness.layout import Layout
 from harness.plot import plot_convergence
+from harness.rates import scaling_exponents
 from harness.study import Study
 from harness.versions import tool_versions
 from harness.writers import PRECISE_CSV_FORMAT, csv_text, json_text
@@ -16,7 +19,7 @@ from harness.writers import PRECISE_CSV_FORMAT, csv_text, json_text
 # Physical quantities of each run worth keeping next to the errors (from run.json).
 RUN_FACTS = (
     "converged", "newton_iterations", "wall_s", "dofs", "max_theta", "min_phi", "max_phi",
-    "max_abs_u", "contact_force", "active_measure", "initial_guess",
+    "max_abs_u", "contact_force", "active_measure", "initial_guess", "peak_rss_mb",
 )
 
 
@@ -60,12 +63,25 @@ def summary(study: Study) -> dict[str, Any]:
         # The three terms carry different units; say which one dominates the sum.
         "share_of_total_at_finest": {f: finest[f"err_{f}"] / finest["err_total"] for f in study.fields},
         "sweep_wall_s": study.wall_s,
+        # What a level costs against its unknowns (wall time, FreeFEM's peak memory), fitted
+        # from n = COST_FIT_FROM on: the coarser levels are start-up, not the solver's scaling.
+        "cost_vs_dofs": cost_exponents(study),
         # Each level's cache key: a level dir whose inputs.json differs is not this study's run.
         "runs": {str(n): {**{k: getattr(run.record, k) for k in RUN_FACTS}, "key": run.key}
                  for n, run in sorted(study.runs.items())},
         "scene": study.scene.table,
         "tools": tool_versions(),
     }
+
+
+COST_FIT_FROM = 8
+
+
+def cost_exponents(study: Study) -> dict[str, float]:
+    rows = [{"n": n, "dofs": run.record.dofs, "wall_s": run.record.wall_s, "peak_rss_mb": run.record.peak_rss_mb}
+            for n, run in study.runs.items()]
+    fits = scaling_exponents(pd.DataFrame(rows), COST_FIT_FROM)
+    return fits if sum(r["n"] >= COST_FIT_FROM for r in rows) >= 2 else {}
 
 
 def format_table(study: Study) -> str:
