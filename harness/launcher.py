@@ -118,7 +118,7 @@ def merge_records(post: dict[str, Any], parallel: dict[str, Any]) -> dict[str, A
         post_pass_residuals=post.get("residuals"),
         parallel={k: parallel[k] for k in ("ranks", "peak_rss_mb_per_rank", "newton_dofs_per_rank",
                                            "contact_nodes_per_rank", "krylov_iterations", "factorisations_by_step", "krylov",
-                                           "krylov_tolerance", "overlap_layers", "wall") if k in parallel},
+                                           "krylov_tolerance", "overlap_layers", "coarse_space", "wall") if k in parallel},
     )
     return merged
 

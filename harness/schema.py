@@ -198,6 +198,12 @@ SCHEMA: dict[str, dict[str, Key]] = {
         "ranks": Key(int, 1, positive),
         # How ranks are started; {ranks} is replaced. On a SLURM cluster: "srun -n {ranks} FreeFem++-mpi".
         "launcher": Key(str, "ff-mpirun -np {ranks}"),
+        # With run.ranks > 1: the Schwarz preconditioner's second level (freefem/coarse_space.idp).
+        # "nested": a coarse-grid correction on the mesh coarse_levels halvings of n below the
+        # level (the coarsest is n = 2); "none": one-level RAS, whose Krylov iterations grow
+        # with the ranks (docs/scale-out.md, results/solvers/ranks.csv).
+        "coarse_space": Key(str, "nested", one_of("none", "nested")),
+        "coarse_levels": Key(int, 3, positive),
     },
     "study": {
         "levels": Key(list, check=positive_ints),

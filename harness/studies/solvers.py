@@ -2,7 +2,7 @@
 
     python -m harness solvers [--points paper:64,paper3d:16] [--repeats 3]
         [--only mumps,umfpack,petsc-fieldsplit,petsc-mumps-blr] [--results results/solvers]
-        [--rank-point paper:64 --ranks 1,2,4,8]
+        [--rank-point paper:64 --ranks 1,2,4,8 --coarse-spaces none,nested]
 
 Each point is a scene of cases/ and a level. The chain below the level is solved once per
 solver (and cached); the level itself is then rerun `--repeats` times from it, alone, as a
@@ -13,10 +13,11 @@ A solver that fails at a point (UMFPACK's 32-bit indices, a Krylov method that s
 row with its reason, not an error of the table.
 
 With --ranks, the rank table (ranks.csv, ranks.md): the rank point solved from zero on each
-number of MPI ranks (run.ranks, one-level restricted additive Schwarz with a MUMPS_seq
-factorisation per subdomain, freefem/parallel_newton.idp), its Newton iterations and the
-GMRES iterations of each step. Ranks past the cores are oversubscribed: the iteration
-counts are what such a run measures, not its time.
+number of MPI ranks (run.ranks: restricted additive Schwarz with a MUMPS_seq factorisation
+per subdomain, freefem/parallel_newton.idp) and each run.coarse_space of --coarse-spaces
+(none: one level; nested: with the coarse-grid correction of freefem/coarse_space.idp),
+its Newton iterations and the GMRES iterations of each step. Ranks past the cores are
+oversubscribed: the iteration counts are what such a run measures, not its time.
 """
 
 from __future__ import annotations
@@ -50,6 +51,7 @@ SOLVERS: dict[str, tuple[str, Callable[[tuple[str, ...]], str]]] = {
     "petsc-mumps": ("petsc", lambda fields: MUMPS_LU),
     "petsc-mumps-blr": ("petsc", lambda fields: MUMPS_LU + " -mat_mumps_icntl_35 2 -mat_mumps_cntl_7 1e-8"),
 }
+COARSE_SPACES = ("none", "nested")  # run.coarse_space (harness/schema.py)
 KEYS = ("wall_s", "bulk_assembly_s", "factorisation_s", "solve_s", "newton_s", "peak_rss_mb")
 
 
@@ -100,18 +102,20 @@ def measure(case: str, n: int, name: str, repeats: int, layout: Layout,
             "linear_per_newton_step": sum(linear) / max(len(linear), 1)}
 
 
-def rank_row(case: str, n: int, ranks: int, layout: Layout, say: Callable[[str], None]) -> dict[str, Any]:
-    overrides = [f'scene.name="ranks-{case}-{ranks}"', f"run.ranks={ranks}", 'scene.initial_guess="zero"',
-                 "run.timeout_s=3600"]
+def rank_row(case: str, n: int, ranks: int, coarse: str, layout: Layout,
+             say: Callable[[str], None]) -> dict[str, Any]:
+    overrides = [f'scene.name="ranks-{case}-{ranks}-{coarse}"', f"run.ranks={ranks}", 'scene.initial_guess="zero"',
+                 "run.timeout_s=3600", f'run.coarse_space="{coarse}"']
     scene = load_scene(CASES / f"{case}.toml", overrides)
-    row: dict[str, Any] = {"scene": case, "n": n, "ranks": ranks}
+    # One rank solves sequentially: no Schwarz, so no coarse space.
+    row: dict[str, Any] = {"scene": case, "n": n, "ranks": ranks, "coarse_space": coarse if ranks > 1 else "-"}
     try:
         meshes, _ = timed_meshes(scene, [n], layout)
         record = run_level(scene, meshes[n], n, layout, force=True).record
     except RunError as exc:
         return {**row, "status": f"failed: {exc.failure.text}"}
     linear = list(record.linear_iterations or [])[1:]
-    say(f"{case} n={n} on {ranks} rank(s): Krylov iterations {linear}")
+    say(f"{case} n={n} on {ranks} rank(s), coarse space {row['coarse_space']}: Krylov iterations {linear}")
     return {**row, "status": "ok", "dofs": record.dofs, "newton_iterations": record.newton_iterations,
             "krylov_iterations": " ".join(map(str, linear)), "max_krylov_per_step": max(linear, default=0),
             "wall_s": record.wall_s}
@@ -119,15 +123,18 @@ def rank_row(case: str, n: int, ranks: int, layout: Layout, say: Callable[[str],
 
 def rank_markdown(table: pd.DataFrame) -> str:
     lines = ["# Krylov iterations against MPI ranks (python -m harness solvers --ranks)", "",
-             "One-level RAS, MUMPS_seq per subdomain, from zero; 1 rank: the sequential scheme (a full "
-             "factorisation as GMRES's preconditioner). Oversubscribed past 2 ranks (times not comparable).", "",
-             "| scene | n | ranks | status | Newton its | Krylov its per step | max per step |",
-             "|---|---|---|---|---|---|---|"]
+             "RAS, MUMPS_seq per subdomain, from zero; coarse space none: one level, nested: with the coarse-grid "
+             "correction (run.coarse_levels halvings below n, freefem/coarse_space.idp); 1 rank: the sequential "
+             "scheme (a full factorisation as GMRES's preconditioner). Oversubscribed past 2 ranks (times not "
+             "comparable).", "",
+             "| scene | n | ranks | coarse space | status | Newton its | Krylov its per step | max per step |",
+             "|---|---|---|---|---|---|---|---|"]
     for _, r in table.iterrows():
         its = r.get("krylov_iterations", "") if r["status"] == "ok" else ""
         top = int(r["max_krylov_per_step"]) if r["status"] == "ok" else ""
         newton = int(r["newton_iterations"]) if r["status"] == "ok" else ""
-        lines.append(f"| {r['scene']} | {r['n']} | {r['ranks']} | {r['status']} | {newton} | {its} | {top} |")
+        lines.append(f"| {r['scene']} | {r['n']} | {r['ranks']} | {r['coarse_space']} | {r['status']} | {newton} "
+                     f"| {its} | {top} |")
     return "\n".join(lines) + "\n"
 
 
@@ -152,6 +159,14 @@ def markdown(table: pd.DataFrame) -> str:
     return "\n".join(lines) + "\n"
 
 
+def coarse_space_list(text: str) -> list[str]:
+    names = name_list(text)
+    unknown = [name for name in names if name not in COARSE_SPACES]
+    if unknown or not names:
+        raise argparse.ArgumentTypeError(f"want some of {', '.join(COARSE_SPACES)}, not {text!r}")
+    return names
+
+
 def add_arguments(parser: argparse.ArgumentParser) -> None:
     parser.add_argument("--points", type=lambda s: [point(p) for p in s.split(",")],
                         default=[("paper", 64), ("paper3d", 16)], help="CASE:N,... (default paper:64,paper3d:16)")
@@ -161,6 +176,8 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
     parser.add_argument("--rank-point", type=point, default=("paper", 64), help="CASE:N of the rank table")
     parser.add_argument("--ranks", type=lambda t: [positive_int(x) for x in t.split(",")], default=None,
                         help="comma-separated rank counts: the rank table alone (e.g. 1,2,4,8)")
+    parser.add_argument("--coarse-spaces", type=coarse_space_list, default=["none", "nested"],
+                        help="run.coarse_space values of the rank table (default none,nested)")
     parser.add_argument("--results", type=Path, default=DEFAULT_RESULTS)
 
 
@@ -173,7 +190,9 @@ def run(args: argparse.Namespace) -> int:
         # More ranks than cores: OpenMPI refuses them unless told (the counts are what is measured).
         os.environ.setdefault("OMPI_MCA_rmaps_base_oversubscribe", "1")
         case, n = args.rank_point
-        ranks = pd.DataFrame([rank_row(case, n, count, layout, say) for count in args.ranks])
+        spaces = {count: args.coarse_spaces if count > 1 else args.coarse_spaces[:1] for count in args.ranks}
+        ranks = pd.DataFrame([rank_row(case, n, count, coarse, layout, say)
+                              for count in args.ranks for coarse in spaces[count]])
         write_csv(ranks, args.results / "ranks.csv")
         write_text(rank_markdown(ranks), args.results / "ranks.md")
         print(rank_markdown(ranks))
