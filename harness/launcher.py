@@ -69,10 +69,6 @@ def check_parallel(scene: Any) -> None:
     if Unknowns(scene.effects, scene.dimension).staggered:
         raise SceneError("run.ranks > 1 solves the monolithic Newton system only: this scene's theta is staggered "
                          "(thermal without thermal_contact); solve it on one rank")
-    guesses = {scene.initial_guess, scene.sections.scene.coarsest_guess}
-    if "pressed" in guesses:
-        raise SceneError("run.ranks > 1 cannot start from the pressed guess (its harmonic extensions are global "
-                         "solves); use zero, a file or a coarser level")
 
 
 def environment() -> dict[str, str]:

@@ -87,7 +87,6 @@ def test_merged_record_takes_newton_history_from_the_ranks_and_checks_from_the_p
 
 @pytest.mark.parametrize("override, message", [
     ("scene.element=P2", "P1"),
-    ("scene.coarsest_guess=pressed", "pressed"),
     ('scene.effects=["piezoelectric", "thermal", "contact"]', "staggered"),
 ])
 def test_what_the_ranks_cannot_do_is_refused_before_running(override, message, tmp_path):
@@ -366,3 +365,31 @@ def test_with_the_coarse_space_the_krylov_iterations_stay_bounded_as_the_ranks_d
     assert worst["nested", 4] <= 1.3 * worst["nested", 2] + 2, worst
     assert worst["none", 4] > 1.3 * worst["none", 2] + 2, worst
     assert worst["nested", 2] < worst["none", 2], worst
+
+
+@pytest.mark.skipif(bool(mpi_missing()), reason=mpi_missing() or "-")
+def test_the_pressed_start_on_two_ranks_is_the_one_rank_one(tmp_path):
+    """The pressed state's harmonic extensions are solved on the global mesh every rank keeps
+    (freefem/initial_guess.idp), so a pressed start on ranks is the one-rank start (it used
+    to be refused)."""
+    results = tmp_path / "results"
+    one = solve(CASES / "paper.toml", 8, results, "scene.name=one", "scene.initial_guess=pressed")
+    two = solve(CASES / "paper.toml", 8, results, "scene.name=two", "scene.initial_guess=pressed", "run.ranks=2")
+    assert one.record.newton_iterations == two.record.newton_iterations
+    for a, b in zip(read_state(results / "one/n8/state.txt"), read_state(results / "two/n8/state.txt")):
+        assert np.abs(a - b).max() <= RTOL * np.abs(a).max()
+
+
+@pytest.mark.skipif(bool(mpi_missing()), reason=mpi_missing() or "-")
+def test_newton_restarts_from_the_pressed_state_on_ranks_as_on_one_rank(tmp_path):
+    """cases/hard/no_piezo.toml at n = 2 from zero: damped steps until half of the 40
+    iterations, the restart from the pressed state, then 3 more steps (23 in all) on one
+    rank; two ranks used to stop with "diverged" there instead."""
+    results = tmp_path / "results"
+    case = CASES / "hard" / "no_piezo.toml"
+    one = solve(case, 2, results, "scene.name=one", "scene.initial_guess=zero")
+    two = solve(case, 2, results, "scene.name=two", "scene.initial_guess=zero", "run.ranks=2")
+    assert one.record.newton_iterations == two.record.newton_iterations == 23
+    assert two.record.consistent_tangent[1:].count(0) == 1  # the restart's mark (newton.idp; [0] is the start)
+    for a, b in zip(read_state(results / "one/n2/state.txt"), read_state(results / "two/n2/state.txt")):
+        assert np.abs(a - b).max() <= RTOL * np.abs(a).max()
