@@ -89,7 +89,9 @@ class Scene:
     def coarse_levels(self) -> int:
         """Halvings of n down to the coarse space's mesh on ranks (0: one-level Schwarz, or one rank)."""
         run = self.sections.run
-        return run.coarse_levels if run.ranks > 1 and run.coarse_space == "nested" else 0
+        if run.ranks == 1 or run.coarse_space != "nested":
+            return 0
+        return run.coarse_levels or (3 if self.dimension == 2 else 2)
 
     @property
     def factorises(self) -> bool:
