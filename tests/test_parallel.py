@@ -294,8 +294,9 @@ def coarse_operator(tmp_path: Path, ranks: int, n: int, coarse_levels: int) -> n
     from harness.run import solver_inputs
 
     layout = Layout(results=tmp_path / "results")
-    scene = load_scene(CASES / "paper.toml", ["run.ranks=2", f"run.coarse_levels={coarse_levels}",
-                                              "newton.max_iterations=1", "scene.initial_guess=zero"])
+    scene = load_scene(CASES / "paper.toml", ["run.ranks=2", "run.coarse_space=nested",
+                                              f"run.coarse_levels={coarse_levels}", "newton.max_iterations=1",
+                                              "scene.initial_guess=zero"])
     mesh = mesh_task(scene, n, layout)
     work = tmp_path / f"r{ranks}"
     work.mkdir()
