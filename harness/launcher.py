@@ -69,10 +69,6 @@ def check_parallel(scene: Any) -> None:
     if Unknowns(scene.effects, scene.dimension).staggered:
         raise SceneError("run.ranks > 1 solves the monolithic Newton system only: this scene's theta is staggered "
                          "(thermal without thermal_contact); solve it on one rank")
-    guesses = {scene.initial_guess, scene.sections.scene.coarsest_guess}
-    if "pressed" in guesses:
-        raise SceneError("run.ranks > 1 cannot start from the pressed guess (its harmonic extensions are global "
-                         "solves); use zero, a file or a coarser level")
 
 
 def environment() -> dict[str, str]:
@@ -118,7 +114,7 @@ def merge_records(post: dict[str, Any], parallel: dict[str, Any]) -> dict[str, A
         post_pass_residuals=post.get("residuals"),
         parallel={k: parallel[k] for k in ("ranks", "peak_rss_mb_per_rank", "newton_dofs_per_rank",
                                            "contact_nodes_per_rank", "krylov_iterations", "factorisations_by_step", "krylov",
-                                           "krylov_tolerance", "overlap_layers", "wall") if k in parallel},
+                                           "krylov_tolerance", "overlap_layers", "coarse_space", "wall") if k in parallel},
     )
     return merged
 

@@ -19,7 +19,7 @@ from harness.errors import EnvironmentFault, RunError, SceneError
 from harness.faults import disk_full, space_for
 from harness.signals import CHILDREN, Interrupted
 from harness.layout import Layout
-from harness.mesh import coarser_meshes
+from harness.mesh import coarser_levels, coarser_meshes
 from harness.record import RunRecord, read_run_json, write_run_json
 from harness.scene import Scene
 from harness.script import main_script
@@ -222,7 +222,7 @@ def cached_result(directory: Path, key: str, n: int) -> RunResult | None:
 
 
 # Options that name files: their content is keyed (mesh, start), not where they are.
-PATH_OPTIONS = frozenset({"-mesh", "-out", "-init.mesh", "-init.state", "-mg.mesh"})
+PATH_OPTIONS = frozenset({"-mesh", "-out", "-init.mesh", "-init.state", "-mg.mesh", "-ddm.coarse_mesh"})
 
 
 def keyed_options(options: list[str]) -> tuple[str, ...]:
@@ -259,10 +259,22 @@ def solver_inputs(
         for coarse in coarser_meshes(scene.geometry, n, scene.multigrid_levels, scene.sections.run.multigrid_coarsest,
                                      mesh.resolve().parent):
             options += ["-mg.mesh", str(coarse)]
+    if parallel and scene.coarse_levels:
+        options += coarse_space_options(scene, n, mesh)
     if start:
         state = str(start.state) if str(start.state) == "-" else str(start.state.resolve())
         options += ["-init.mesh", str(start.mesh.resolve()), "-init.state", state]
     return text, options
+
+
+def coarse_space_options(scene: Scene, n: int, mesh: Path) -> list[str]:
+    """The two-level Schwarz's coarse mesh on ranks (freefem/coarse_space.idp): the scene's
+    mesh run.coarse_levels halvings below n, or the coarsest of the family (n = 2); none
+    when n cannot be halved."""
+    coarse = coarser_meshes(scene.geometry, n, scene.coarse_levels, mesh.resolve().parent)
+    if not coarse:
+        return []
+    return ["-ddm.coarse_mesh", str(coarse[-1]), "-ddm.coarse_n", str(coarser_levels(n, scene.coarse_levels)[-1])]
 
 
 def manufactured_macros(scene: Scene, layout: Layout) -> dict[str, str]:

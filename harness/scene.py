@@ -86,6 +86,14 @@ class Scene:
         return self.sections.run.multigrid_levels if self.linear_solver == "petsc" and multigrid(self.petsc_options) else 0
 
     @property
+    def coarse_levels(self) -> int:
+        """Halvings of n down to the coarse space's mesh on ranks (0: one-level Schwarz, or one rank)."""
+        run = self.sections.run
+        if run.ranks == 1 or run.coarse_space != "nested":
+            return 0
+        return run.coarse_levels or (3 if self.dimension == 2 else 2)
+
+    @property
     def factorises(self) -> bool:
         """Whether the linear solver factorises the Newton matrix (memory: a factor's fill)."""
         return self.linear_solver != "petsc" or factorising(self.petsc_options)
@@ -126,6 +134,7 @@ class Scene:
             **({"petsc_options": self.petsc_options} if self.linear_solver == "petsc" else {}),
             **({"multigrid": [self.multigrid_levels, self.sections.run.multigrid_coarsest]}
                if self.multigrid_levels else {}),
+            **({"coarse_levels": self.coarse_levels} if self.coarse_levels else {}),
             "effects": list(self.effects),
             "geometry": copy.deepcopy(self.table["geometry"]),
             **self.solver_parameters(),

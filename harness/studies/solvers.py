@@ -2,7 +2,7 @@
 
     python -m harness solvers [--points paper:64,paper3d:16] [--repeats 3]
         [--only mumps,umfpack,petsc-fieldsplit,petsc-mumps-blr,petsc-mg] [--results results/solvers]
-        [--rank-point paper:64 --ranks 1,2,4,8]
+        [--rank-point paper:64 --ranks 1,2,4,8 --coarse-spaces none,nested]
 
 Each point is a scene of cases/ and a level. The chain below the level is solved once per
 solver (and cached); the level itself is then rerun `--repeats` times from it, alone, as a
@@ -13,10 +13,11 @@ A solver that fails at a point (UMFPACK's 32-bit indices, a Krylov method that s
 row with its reason, not an error of the table.
 
 With --ranks, the rank table (ranks.csv, ranks.md): the rank point solved from zero on each
-number of MPI ranks (run.ranks, one-level restricted additive Schwarz with a MUMPS_seq
-factorisation per subdomain, freefem/parallel_newton.idp), its Newton iterations and the
-GMRES iterations of each step. Ranks past the cores are oversubscribed: the iteration
-counts are what such a run measures, not its time.
+number of MPI ranks (run.ranks: restricted additive Schwarz with a MUMPS_seq factorisation
+per subdomain, freefem/parallel_newton.idp) and each run.coarse_space of --coarse-spaces
+(none: one level; nested: with the coarse-grid correction of freefem/coarse_space.idp),
+its Newton iterations and the GMRES iterations of each step. Ranks past the cores are
+oversubscribed: the iteration counts are what such a run measures, not its time.
 """
 
 from __future__ import annotations
@@ -37,7 +38,7 @@ from harness.layout import REPO, Layout
 from harness.petsc_plugin import MULTIGRID, MUMPS_LU, field_split_options
 from harness.pipeline import Guarded, Plan, run_pipeline
 from harness.run import run_level
-from harness.scene import load_scene
+from harness.scene import Scene, load_scene
 from harness.unknowns import Unknowns
 from harness.writers import markdown_table, write_csv, write_text
 
@@ -52,6 +53,7 @@ SOLVERS: dict[str, tuple[str, Callable[[tuple[str, ...]], str]]] = {
     "petsc-mumps-blr": ("petsc", lambda fields: MUMPS_LU + " -mat_mumps_icntl_35 2 -mat_mumps_cntl_7 1e-8"),
     "petsc-mg": ("petsc", lambda fields: MULTIGRID),
 }
+COARSE_SPACES = ("none", "nested")  # run.coarse_space (harness/schema.py)
 KEYS = ("wall_s", "bulk_assembly_s", "factorisation_s", "solve_s", "newton_s", "peak_rss_mb")
 
 
@@ -70,15 +72,21 @@ def solver_list(text: str) -> list[str]:
     return names
 
 
-def measure(case: str, n: int, name: str, repeats: int, layout: Layout,
-            say: Callable[[str], None]) -> dict[str, Any]:
+def solver_scene(case: str, name: str) -> Scene:
+    """The case solved with the table's solver `name`."""
     solver, options_of = SOLVERS[name]
     plain = load_scene(CASES / f"{case}.toml")
     options = options_of(tuple(f.name for f in Unknowns(plain.effects, plain.dimension).newton))
     overrides = [f'run.linear_solver="{solver}"', f'scene.name="solvers-{case}-{name}"', "run.timeout_s=3600"]
     if options:
         overrides.append(f'run.petsc_options="{options}"')
-    scene = load_scene(CASES / f"{case}.toml", overrides)
+    return load_scene(CASES / f"{case}.toml", overrides)
+
+
+def measure(case: str, n: int, name: str, repeats: int, layout: Layout,
+            say: Callable[[str], None]) -> dict[str, Any]:
+    scene = solver_scene(case, name)
+    solver = scene.linear_solver
     levels = [m for m in scene.levels if m < n] + [n]
     row: dict[str, Any] = {"scene": case, "n": n, "solver": name, "linear_solver": solver,
                            "options": scene.petsc_options if solver == "petsc" else ""}
@@ -102,18 +110,20 @@ def measure(case: str, n: int, name: str, repeats: int, layout: Layout,
             "linear_per_newton_step": sum(linear) / max(len(linear), 1)}
 
 
-def rank_row(case: str, n: int, ranks: int, layout: Layout, say: Callable[[str], None]) -> dict[str, Any]:
-    overrides = [f'scene.name="ranks-{case}-{ranks}"', f"run.ranks={ranks}", 'scene.initial_guess="zero"',
-                 "run.timeout_s=3600"]
+def rank_row(case: str, n: int, ranks: int, coarse: str, layout: Layout,
+             say: Callable[[str], None]) -> dict[str, Any]:
+    overrides = [f'scene.name="ranks-{case}-{ranks}-{coarse}"', f"run.ranks={ranks}", 'scene.initial_guess="zero"',
+                 "run.timeout_s=3600", f'run.coarse_space="{coarse}"']
     scene = load_scene(CASES / f"{case}.toml", overrides)
-    row: dict[str, Any] = {"scene": case, "n": n, "ranks": ranks}
+    # One rank solves sequentially: no Schwarz, so no coarse space.
+    row: dict[str, Any] = {"scene": case, "n": n, "ranks": ranks, "coarse_space": coarse if ranks > 1 else "-"}
     try:
         meshes, _ = timed_meshes(scene, [n], layout)
         record = run_level(scene, meshes[n], n, layout, force=True).record
     except RunError as exc:
         return {**row, "status": f"failed: {exc.failure.text}"}
     linear = list(record.linear_iterations or [])[1:]
-    say(f"{case} n={n} on {ranks} rank(s): Krylov iterations {linear}")
+    say(f"{case} n={n} on {ranks} rank(s), coarse space {row['coarse_space']}: Krylov iterations {linear}")
     return {**row, "status": "ok", "dofs": record.dofs, "newton_iterations": record.newton_iterations,
             "krylov_iterations": " ".join(map(str, linear)), "max_krylov_per_step": max(linear, default=0),
             "wall_s": record.wall_s}
@@ -121,16 +131,18 @@ def rank_row(case: str, n: int, ranks: int, layout: Layout, say: Callable[[str],
 
 def rank_markdown(table: pd.DataFrame) -> str:
     lines = ["# Krylov iterations against MPI ranks (python -m harness solvers --ranks)", "",
-             "One-level RAS, MUMPS_seq per subdomain, from zero; 1 rank: the sequential scheme (a full "
-             "factorisation as GMRES's preconditioner). Oversubscribed past 2 ranks (times not comparable).", ""]
+             "RAS, MUMPS_seq per subdomain, from zero; coarse space none: one level, nested: with the coarse-grid "
+             "correction (run.coarse_levels halvings below n, freefem/coarse_space.idp); 1 rank: the sequential "
+             "scheme (a full factorisation as GMRES's preconditioner). Oversubscribed past 2 ranks (times not "
+             "comparable).", ""]
     rows = []
     for _, r in table.iterrows():
         its = r.get("krylov_iterations", "") if r["status"] == "ok" else ""
         top = int(r["max_krylov_per_step"]) if r["status"] == "ok" else ""
         newton = int(r["newton_iterations"]) if r["status"] == "ok" else ""
-        rows.append([r["scene"], r["n"], r["ranks"], r["status"], newton, its, top])
+        rows.append([r["scene"], r["n"], r["ranks"], r["coarse_space"], r["status"], newton, its, top])
     return "\n".join(lines) + "\n" + markdown_table(
-        ("scene", "n", "ranks", "status", "Newton its", "Krylov its per step", "max per step"), rows)
+        ("scene", "n", "ranks", "coarse space", "status", "Newton its", "Krylov its per step", "max per step"), rows)
 
 
 def markdown(table: pd.DataFrame) -> str:
@@ -154,6 +166,14 @@ def markdown(table: pd.DataFrame) -> str:
     return "\n".join(lines) + "\n"
 
 
+def coarse_space_list(text: str) -> list[str]:
+    names = name_list(text)
+    unknown = [name for name in names if name not in COARSE_SPACES]
+    if unknown or not names:
+        raise argparse.ArgumentTypeError(f"want some of {', '.join(COARSE_SPACES)}, not {text!r}")
+    return names
+
+
 def add_arguments(parser: argparse.ArgumentParser) -> None:
     parser.add_argument("--points", type=lambda s: [point(p) for p in s.split(",")],
                         default=[("paper", 64), ("paper3d", 16)], help="CASE:N,... (default paper:64,paper3d:16)")
@@ -163,6 +183,8 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
     parser.add_argument("--rank-point", type=point, default=("paper", 64), help="CASE:N of the rank table")
     parser.add_argument("--ranks", type=lambda t: [positive_int(x) for x in t.split(",")], default=None,
                         help="comma-separated rank counts: the rank table alone (e.g. 1,2,4,8)")
+    parser.add_argument("--coarse-spaces", type=coarse_space_list, default=["none", "nested"],
+                        help="run.coarse_space values of the rank table (default none,nested)")
     parser.add_argument("--results", type=Path, default=DEFAULT_RESULTS)
     add_memory_override(parser)
 
@@ -172,21 +194,24 @@ def run(args: argparse.Namespace) -> int:
         print(text, file=sys.stderr, flush=True)
 
     layout = Layout(results=args.results / "runs")
-    points = [args.rank_point] if args.ranks else args.points
-    guarded = tuple(Guarded(scene, tuple(m for m in scene.levels if m < n) + (n,))
-                    for scene, n in ((load_scene(CASES / f"{case}.toml"), n) for case, n in points))
+    # Each point guarded with the solvers it is measured with (a factorisation's fill, or not).
+    points = ([(load_scene(CASES / f"{case}.toml"), n) for case, n in [args.rank_point]] if args.ranks
+              else [(solver_scene(case, name), n) for case, n in args.points for name in args.only])
+    guarded = tuple(Guarded(scene, tuple(m for m in scene.levels if m < n) + (n,)) for scene, n in points)
     plan = Plan(args.results, guarded, outputs=(args.results,), ignore_memory=args.ignore_memory)
     if args.ranks:
         # More ranks than cores: OpenMPI refuses them unless told (the counts are what is measured).
         os.environ.setdefault("OMPI_MCA_rmaps_base_oversubscribe", "1")
         case, n = args.rank_point
+        spaces = {count: args.coarse_spaces if count > 1 else args.coarse_spaces[:1] for count in args.ranks}
 
         def rank_report(ranks: pd.DataFrame) -> None:
             write_csv(ranks, args.results / "ranks.csv")
             write_text(rank_markdown(ranks), args.results / "ranks.md")
             print(rank_markdown(ranks))
 
-        run_pipeline(plan, lambda: pd.DataFrame([rank_row(case, n, count, layout, say) for count in args.ranks]),
+        run_pipeline(plan, lambda: pd.DataFrame([rank_row(case, n, count, coarse, layout, say)
+                                                for count in args.ranks for coarse in spaces[count]]),
                      rank_report)
         return 0
 
