@@ -271,7 +271,7 @@ def coarse_space_options(scene: Scene, n: int, mesh: Path) -> list[str]:
     """The two-level Schwarz's coarse mesh on ranks (freefem/coarse_space.idp): the scene's
     mesh run.coarse_levels halvings below n, or the coarsest of the family (n = 2); none
     when n cannot be halved."""
-    coarse = coarser_meshes(scene.geometry, n, scene.coarse_levels, mesh.resolve().parent)
+    coarse = coarser_meshes(scene.geometry, n, scene.coarse_levels, 2, mesh.resolve().parent)
     if not coarse:
         return []
     return ["-ddm.coarse_mesh", str(coarse[-1]), "-ddm.coarse_n", str(coarser_levels(n, scene.coarse_levels)[-1])]

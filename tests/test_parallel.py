@@ -292,7 +292,7 @@ def coarse_operator(tmp_path: Path, ranks: int, n: int, coarse_levels: int) -> n
     import subprocess
 
     from harness import launcher
-    from harness.executor import mesh_task
+    from harness.mesh import build_mesh
     from harness.layout import Layout
     from harness.run import solver_inputs
 
@@ -300,7 +300,7 @@ def coarse_operator(tmp_path: Path, ranks: int, n: int, coarse_levels: int) -> n
     scene = load_scene(CASES / "paper.toml", ["run.ranks=2", "run.coarse_space=nested",
                                               f"run.coarse_levels={coarse_levels}", "newton.max_iterations=1",
                                               "scene.initial_guess=zero"])
-    mesh = mesh_task(scene, n, layout)
+    mesh = build_mesh(scene.geometry, n, layout.meshes_dir(scene.name)).path
     work = tmp_path / f"r{ranks}"
     work.mkdir()
     text, options = solver_inputs(scene, mesh, n, layout, "zero", None, out=work)
