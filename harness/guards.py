@@ -35,10 +35,12 @@ DOFS_3D_MEASURED = 93_925
 BYTES_PER_DOF_ITERATIVE = {2: 7e3, 3: 14.5e3}
 # Geometric multigrid (-pc_type mg over the nested meshes, run.multigrid_levels): K and the
 # tangent in FreeFEM, PETSc's copy, the ILU(0) smoother of the finest level (the matrix's
-# pattern again) and the Galerkin levels (1/8 or 1/4 of it each). Measured (VmHWM):
-# 2D h = 1/64 235 MiB for 66,820 dofs (3.69 kB), 1/128 743 MiB for 264,708 (2.94 kB);
-# 3D h = 1/16 573 MiB for 93,925 (6.25 kB), 1/32 4,040 MiB for 702,405 (6.03 kB). The largest, rounded up.
-BYTES_PER_DOF_MULTIGRID = {2: 3.7e3, 3: 6.3e3}
+# pattern again), the Galerkin levels (1/8 or 1/4 of it each) and the LU of the coarsest
+# (n = 8, a fixed cost). Measured (VmHWM, results/paper3d/summary.json, docs/solvers.md):
+# 2D h = 1/64 235 MiB for 66,820 dofs (3.69 kB), 1/128 743 MiB for 264,708 (2.94 kB),
+# 1/512 10,739 MiB for 4,204,548 (2.68 kB); 3D h = 1/16 665 MiB for 93,925 (7.43 kB),
+# 1/32 4,044 MiB for 702,405 (6.04 kB). The largest, rounded up.
+BYTES_PER_DOF_MULTIGRID = {2: 3.7e3, 3: 7.5e3}
 # MSH 2.2 text per mesh node: a node line (~60 characters) and two triangle lines (~30
 # each); in 3D, six tetrahedron lines (~40 each).
 MSH_BYTES_PER_NODE = {2: 150, 3: 320}
