@@ -168,3 +168,29 @@ def plot_scaling(study: CostStudy, target: Path) -> None:
     ax.legend(fontsize=8)
     fig.tight_layout()
     fig.savefig(target, format="png", dpi=110)
+
+
+def plot_rank_iterations(ranks: pd.DataFrame, target: Path) -> None:
+    """The rank table (python -m harness solvers --ranks): the most Krylov iterations of a
+    Newton step against the MPI ranks, one line per coarse space, one rank's factorisation
+    as the reference."""
+    fig = Figure(figsize=(5.6, 4.0))
+    ax = fig.subplots()
+    done = ranks[ranks["status"] == "ok"]
+    one = done[done["ranks"] == 1]
+    names = {"none": "one-level Schwarz", "nested": "two-level (nested coarse mesh)"}
+    for space, group in done[done["ranks"] > 1].groupby("coarse_space", sort=False):
+        group = pd.concat([one, group]).sort_values("ranks")
+        ax.plot(group["ranks"], group["max_krylov_per_step"], "-o", label=names.get(str(space), str(space)))
+    ax.set_xscale("log", base=2)
+    ax.set_xticks(sorted(done["ranks"].unique()), [str(r) for r in sorted(done["ranks"].unique())])
+    ax.minorticks_off()
+    scene, n = done["scene"].iloc[0], int(done["n"].iloc[0])
+    ax.set_title(f"{scene}, h = 1/{n}, from zero")
+    ax.set_xlabel("MPI ranks")
+    ax.set_ylabel("most GMRES iterations in a Newton step")
+    ax.set_ylim(bottom=0)
+    ax.grid(True, alpha=0.3)
+    ax.legend(fontsize=8)
+    fig.tight_layout()
+    fig.savefig(target, format="png", dpi=120)

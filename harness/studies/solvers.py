@@ -36,6 +36,7 @@ from harness.engine import quiet, run_levels, runs_of, timed_meshes
 from harness.errors import RunError
 from harness.layout import REPO, Layout
 from harness.petsc_plugin import MULTIGRID, MUMPS_LU, field_split_options
+from harness.plot import plot_rank_iterations
 from harness.pipeline import Guarded, Plan, run_pipeline
 from harness.run import run_level
 from harness.scene import Scene, load_scene
@@ -208,6 +209,7 @@ def run(args: argparse.Namespace) -> int:
         def rank_report(ranks: pd.DataFrame) -> None:
             write_csv(ranks, args.results / "ranks.csv")
             write_text(rank_markdown(ranks), args.results / "ranks.md")
+            plot_rank_iterations(ranks, args.results / "ranks.png")
             print(rank_markdown(ranks))
 
         run_pipeline(plan, lambda: pd.DataFrame([rank_row(case, n, count, coarse, layout, say)
