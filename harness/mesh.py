@@ -47,10 +47,16 @@ def coarser_levels(n: int, count: int, coarsest: int = 2) -> list[int]:
     return levels
 
 
-def coarser_meshes(geometry: Geometry | Box, n: int, count: int, coarsest: int, directory: Path) -> list[Path]:
-    """The meshes of `coarser_levels(n, count, coarsest)`, finest first, made where missing."""
+def coarser_meshes(geometry: Geometry | Box, n: int, count: int, coarsest: int, directory: Path,
+                   make: bool = True) -> list[Path]:
+    """The meshes of `coarser_levels(n, count, coarsest)`, finest first; made (or refreshed)
+    only with `make`: a run's cache key needs their names, not their files (2D n = 512's four
+    coarser meshes take 9 s)."""
+    levels = coarser_levels(n, count, coarsest)
+    if not make:
+        return [mesh_path(directory, m) for m in levels]
     with GMSH:
-        return [build_mesh(geometry, m, directory).path for m in coarser_levels(n, count, coarsest)]
+        return [build_mesh(geometry, m, directory).path for m in levels]
 
 
 def build_mesh(geometry: Geometry | Box, n: int, directory: Path) -> MeshSummary:

@@ -122,7 +122,7 @@ class LevelRun:
             described["start_key"] = start.key
         elif start:
             described["start_state_sha256"] = sha256_file(start.state)
-        script, options = solver_inputs(self.scene, self.mesh, self.n, self.layout, guess, start)
+        script, options = solver_inputs(self.scene, self.mesh, self.n, self.layout, guess, start, make_meshes=False)
         self.inputs = run_inputs(self.mesh, described, self.layout.freefem, freefem.freefem_version(), self.n,
                                  script, keyed_options(options), self.layout.material_file(self.scene.material))
         self.start_line = (guess, start)
@@ -241,10 +241,12 @@ def keyed_options(options: list[str]) -> tuple[str, ...]:
 
 def solver_inputs(
     scene: Scene, mesh: Path, n: int, layout: Layout, guess: str, start: WarmStart | None, out: Path | None = None,
-    sequential: bool = False,
+    sequential: bool = False, make_meshes: bool = True,
 ) -> tuple[str, list[str]]:
     """main.edp's text and FreeFEM's options. A start state "-" is read from stdin (a pipelined run).
-    On several ranks (run.ranks > 1) the text is the distributed scheme's, unless `sequential`."""
+    On several ranks (run.ranks > 1) the text is the distributed scheme's, unless `sequential`.
+    The coarser meshes the options name (a multigrid's levels, a coarse space) are made only
+    with `make_meshes`: the cache key needs their names alone."""
     macros = {**manufactured_macros(scene, layout), **scene.reference_macros()}
     parallel = launcher.ranks_of(scene).parallel and not sequential
     petsc = scene.linear_solver == "petsc"
@@ -257,21 +259,21 @@ def solver_inputs(
     if petsc:
         options += ["-run.petsc_options", scene.petsc_options]
         for coarse in coarser_meshes(scene.geometry, n, scene.multigrid_levels, scene.sections.run.multigrid_coarsest,
-                                     mesh.resolve().parent):
+                                     mesh.resolve().parent, make_meshes):
             options += ["-mg.mesh", str(coarse)]
     if parallel and scene.coarse_levels:
-        options += coarse_space_options(scene, n, mesh)
+        options += coarse_space_options(scene, n, mesh, make_meshes)
     if start:
         state = str(start.state) if str(start.state) == "-" else str(start.state.resolve())
         options += ["-init.mesh", str(start.mesh.resolve()), "-init.state", state]
     return text, options
 
 
-def coarse_space_options(scene: Scene, n: int, mesh: Path) -> list[str]:
+def coarse_space_options(scene: Scene, n: int, mesh: Path, make: bool = True) -> list[str]:
     """The two-level Schwarz's coarse mesh on ranks (freefem/coarse_space.idp): the scene's
     mesh run.coarse_levels halvings below n, or the coarsest of the family (n = 2); none
     when n cannot be halved."""
-    coarse = coarser_meshes(scene.geometry, n, scene.coarse_levels, 2, mesh.resolve().parent)
+    coarse = coarser_meshes(scene.geometry, n, scene.coarse_levels, 2, mesh.resolve().parent, make)
     if not coarse:
         return []
     return ["-ddm.coarse_mesh", str(coarse[-1]), "-ddm.coarse_n", str(coarser_levels(n, scene.coarse_levels)[-1])]
