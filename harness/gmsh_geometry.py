@@ -24,8 +24,7 @@ from harness.errors import SceneError
 from harness.gmsh_api import session
 
 LEVEL_KINDS = ("split", "remesh")
-# Roles that hold the body still: a clamp, or a roller along every axis (a roller along x
-# on a part that is not a line x = const also stops the rotation; see docs/geometry.md).
+# Rollers along every axis hold the body like a clamp (docs/geometry.md says when they do).
 ROLLERS = ("roller_x", "roller_y", "roller_z")
 
 
@@ -113,9 +112,13 @@ def parse_gmsh(table: dict[str, Any], case_dir: Path, levels: list[int], effects
         if role not in ROLE_LABELS:
             raise SceneError(f"geometry.roles.{name} = {role!r}: role must be one of {', '.join(ROLE_LABELS)}")
     used = set(roles.values())
-    if "clamped" not in used and not set(ROLLERS[:dimension]) <= used:
-        raise SceneError("geometry.roles: no part is clamped (nor rollers along every axis): the body could "
-                         "move as a rigid body")
+    # What holds the body: a clamp, rollers along every axis, or the penalised foundation with
+    # friction (its normal and tangential penalties, once pressed: tests/data/block.toml).
+    held = "clamped" in used or set(ROLLERS[:dimension]) <= used or (
+        "contact" in used and {"contact", "friction"} <= set(effects))
+    if not held:
+        raise SceneError("geometry.roles: no part is clamped (nor rollers along every axis, nor a contact part "
+                         "with friction): the body could move as a rigid body")
     if "contact" in effects and "contact" not in used:
         raise SceneError("geometry.roles: the contact part is empty (no name maps to role contact) but effect "
                          "'contact' is on")
@@ -148,8 +151,9 @@ def read_geo(file: Path, dimension: int, contact_names: list[str]) -> tuple[
         if drawn != dimension:
             raise SceneError(f"{file.name} draws a {drawn}D body but geometry.dimension = {dimension}")
         if dimension == 2:
-            z = gmsh.model.getBoundingBox(-1, -1)
-            if abs(z[2]) > 0 or abs(z[5]) > 0:
+            box = gmsh.model.getBoundingBox(-1, -1)
+            # OpenCASCADE pads its bounding boxes by ~1e-7: a body in z = 0 is within that.
+            if max(abs(box[2]), abs(box[5])) > 1e-6 * max(box[3] - box[0], box[4] - box[1]):
                 raise SceneError(f"{file.name}: a 2D body must lie in the plane z = 0")
         found: dict[str, list[int]] = {}
         for dim, tag in gmsh.model.getPhysicalGroups(dimension - 1):

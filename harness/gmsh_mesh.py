@@ -109,6 +109,8 @@ def read_cells(d: int) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
             owners.append(np.full(len(block), entity))
     if not cells:
         raise MeshError("gmsh made no elements")
+    if d == 2 and np.abs(points[:, 2]).max() > 0:
+        raise MeshError("a 2D mesh has nodes off the plane z = 0")
     return points[:, :d], np.vstack(cells), np.concatenate(owners)
 
 
@@ -238,7 +240,8 @@ def check_flat_contact(points: np.ndarray, facets: np.ndarray, labels: np.ndarra
     normals = outward_normals(points, facets[on])
     mean = normals.mean(axis=0)
     mean /= np.linalg.norm(mean)
-    angle = np.arccos(np.clip(normals @ mean, -1.0, 1.0))
+    # From the chord |n - mean|: arccos of a dot product near 1 would turn round-off 1e-16 into 1e-8 rad.
+    angle = 2.0 * np.arcsin(np.clip(np.linalg.norm(normals - mean, axis=1) / 2.0, 0.0, 1.0))
     worst = int(np.argmax(angle))
     if angle[worst] > FLAT:
         where = place(points[facets[on][worst]])
