@@ -164,14 +164,17 @@ def simplex_seminorm(points: np.ndarray, cells: np.ndarray, values: np.ndarray) 
     return float(np.sqrt(np.sum(volume * density)))
 
 
-def tetrahedron_weights(coarse: Fields, at: np.ndarray, tol: float = 1e-5) -> tuple[np.ndarray, np.ndarray]:
+def tetrahedron_weights(coarse: Fields, at: np.ndarray, tol: float = 1e-5,
+                        outside: float | None = OUTSIDE) -> tuple[np.ndarray, np.ndarray]:
     """Point location in an unstructured tetrahedral mesh: for each point of `at`, the four
     nodes of the coarse tetrahedron holding it and its barycentric weights. The tetrahedra
     are binned on a uniform grid by their bounding boxes; each point is tested against its
     bin's tetrahedra only (bins padded by `tol` of the mesh's size) and takes the one where
     its smallest weight is largest (on a shared face either neighbour gives the same P1
     value); a node outside every tetrahedron by up to OUTSIDE takes the nearest one's P1
-    extension (single-precision coordinates, or a curved boundary)."""
+    extension (single-precision coordinates, or a curved boundary). `outside=None`: a point
+    in no tetrahedron (beyond `tol`) gets node -1 and zero weights instead of an error (a
+    picture's samples of a plane through the body)."""
     points, tets = coarse.points, coarse.tetrahedra
     corners = points[tets]                                            # (M, 4, 3)
     to_weights = np.linalg.inv(np.swapaxes(corners[:, 1:] - corners[:, :1], 1, 2))  # x - a -> (w1, w2, w3)
@@ -196,9 +199,11 @@ def tetrahedron_weights(coarse: Fields, at: np.ndarray, tol: float = 1e-5) -> tu
         w = np.einsum("cij,pcj->pci", to_weights[candidates], at[rows][:, None, :] - corners[candidates, 0][None])
         full = np.concatenate([1.0 - w.sum(axis=-1, keepdims=True), w], axis=-1)   # (P, C, 4)
         best = full.min(axis=-1).argmax(axis=1)
-        inside = full[np.arange(len(rows)), best].min(axis=-1) >= -OUTSIDE
+        inside = full[np.arange(len(rows)), best].min(axis=-1) >= -(tol if outside is None else outside)
         found[rows[inside]] = candidates[best[inside]]
         weights[rows[inside]] = full[np.arange(len(rows)), best][inside]
+    if outside is None:
+        return np.where(found[:, None] >= 0, tets[found], -1), weights
     if np.any(found < 0):
         raise FieldsError(f"{coarse.source}: some fine nodes lie outside the coarse mesh")
     return tets[found], weights
