@@ -19,7 +19,9 @@ from harness.errors import MeshError
 from harness.gmsh_mesh import oriented, quality
 from harness.mesh import build_mesh
 from harness.scene import load_scene
+from harness.fields import read_state
 from physics_runs import CASES, DATA, solve
+from test_parallel import RTOL, mpi_missing
 
 ALPHA = math.pi / 6  # the tilt of tests/data/tilted_*.geo
 NU = np.array([math.sin(ALPHA), -math.cos(ALPHA)])  # their contact part's outward normal
@@ -233,3 +235,16 @@ def test_a_role_added_to_the_contract_flows_through_to_the_mesh_labels(tmp_path,
     assert mesh.role_lengths["electrode"] == pytest.approx(2.0)
     tags = np.concatenate(meshio.read(mesh.path).cell_data["gmsh:physical"])
     assert 8 in set(tags.tolist())
+
+
+@pytest.mark.skipif(bool(mpi_missing()), reason=mpi_missing() or "-")
+def test_a_tilted_gmsh_scene_on_two_ranks_gives_the_one_rank_solution(tmp_path):
+    """The tilted paper scene (split from n = 2) at n = 8 on 2 MPI ranks: the state agrees
+    with one rank's to Newton's tolerance (test_parallel's criterion), so do the forces."""
+    one = solve(DATA / "tilted_paper.toml", 8, tmp_path, "scene.name=one")
+    two = solve(DATA / "tilted_paper.toml", 8, tmp_path, "scene.name=two", "run.ranks=2")
+    for name, a, b in zip(("u", "phi", "theta"), read_state(tmp_path / "one/n8/state.txt"),
+                          read_state(tmp_path / "two/n8/state.txt")):
+        assert np.abs(a - b).max() <= RTOL * np.abs(a).max(), name
+    assert two.record.ranks == 2 and min(two.record.parallel["contact_nodes_per_rank"]) >= 1
+    assert two.record.contact_force == pytest.approx(one.record.contact_force, rel=1e-8)
