@@ -101,7 +101,8 @@ def test_tilted_face_under_uniform_pressure_carries_the_load_with_penetration_lo
     nodes = np.concatenate(contact_nodes(scene, run.fields))
     assert len(nodes) == contact_node_count(scene, run.fields) == 2 * 8 + 1
     penetration = run.fields.field("u")[nodes] @ NU
-    # (b)'s tolerance and reason: the tangential penalty restrains the Poisson expansion.
+    # (b)'s tolerance and reason: the tangential penalty restrains the Poisson expansion
+    # (measured 6.2e-7 here, so the tilt costs nothing against it).
     assert penetration == pytest.approx(np.full(len(nodes), 100.0 / 1e7), rel=1e-3)
 
 
@@ -248,3 +249,40 @@ def test_a_tilted_gmsh_scene_on_two_ranks_gives_the_one_rank_solution(tmp_path):
         assert np.abs(a - b).max() <= RTOL * np.abs(a).max(), name
     assert two.record.ranks == 2 and min(two.record.parallel["contact_nodes_per_rank"]) >= 1
     assert two.record.contact_force == pytest.approx(one.record.contact_force, rel=1e-8)
+
+
+def turned_normal() -> np.ndarray:
+    """R (0, 0, -1) for R the turn of tests/data/tilted_cube.geo: 30 degrees about (1, 1, 0)."""
+    a = np.array([1.0, 1.0, 0.0]) / math.sqrt(2.0)
+    k = np.array([[0.0, -a[2], a[1]], [a[2], 0.0, -a[0]], [-a[1], a[0], 0.0]])
+    rotation = np.eye(3) + math.sin(ALPHA) * k + (1.0 - math.cos(ALPHA)) * k @ k
+    return rotation @ np.array([0.0, 0.0, -1.0])
+
+
+def test_a_turned_cube_under_uniform_pressure_carries_the_load_in_3d(tmp_path):
+    """(b) in 3D on gmsh's tetrahedra: a unit cube turned about an oblique axis, pressed along
+    its contact face's normal: that normal read from the mesh, contact force = load, and
+    u . nu = p / c_nu on Gamma_3."""
+    run = solve(DATA / "tilted_cube.toml", 4, tmp_path)
+    scene = load_scene(DATA / "tilted_cube.toml")
+    nu = turned_normal()
+    assert run.record.converged
+    np.testing.assert_allclose(contact_normal(scene, run.fields), nu, atol=1e-6)  # single-precision VTU
+    assert run.record.contact_force == pytest.approx(100.0, rel=1e-7)  # area 1 m^2; (b)'s tolerance
+    nodes = np.concatenate(contact_nodes(scene, run.fields))
+    penetration = run.fields.field("u")[nodes] @ nu
+    # Measured within 8e-10 of p / c_nu at n = 4 (153 nodes); 1e-6 bounds the tangential
+    # penalty's restraint of the base's Poisson expansion that (b) allows 1e-3 for in 2D.
+    assert penetration == pytest.approx(np.full(len(nodes), 100.0 / 1e7), rel=1e-6)
+
+
+def test_tilted_face_sticks_below_mu_pressure_with_coulomb_friction(tmp_path):
+    """test_coulomb's stick answer turned by 30 degrees: mu = 0.3, a shear of 0.5 mu p along
+    the face's tangent sticks everywhere and friction carries all of it."""
+    shear = 0.5 * 0.3 * 100.0
+    tx, ty = (float(t) for t in 100.0 * NU + shear * TAU)
+    run = solve(DATA / "tilted_block.toml", 8, tmp_path, f"loads.traction_x={tx!r}", f"loads.traction_y={ty!r}",
+                'contact.friction_law="coulomb"', "contact.mu=0.3")
+    assert run.record.converged
+    assert run.record.slip_nodes[-1] == 0
+    assert run.record.friction_force_vector == pytest.approx(list(shear * 2.0 * TAU), rel=1e-7, abs=1e-12)
