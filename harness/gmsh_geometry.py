@@ -40,7 +40,6 @@ class GmshGeometry:
     contact: tuple[tuple[tuple[float, ...], ...], ...] = ()  # Gamma_3's facets (d points of d coordinates)
     # The coarsest mesh's vertices, edges, (3D: faces,) cells: the guards' node counts.
     coarsest_counts: tuple[int, ...] = ()
-    diagonals: str = "gmsh"         # read by code that asks a rectangle how it was cut
 
     @property
     def role_of_name(self) -> dict[str, str]:
