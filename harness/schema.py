@@ -211,8 +211,8 @@ SCHEMA: dict[str, dict[str, Key]] = {
         # With run.ranks > 1: the Schwarz preconditioner's second level (freefem/coarse_space.idp).
         # "nested": a coarse-grid correction on the mesh coarse_levels halvings of n below the
         # level (the coarsest is n = 2), whose Krylov iterations stay bounded as the ranks grow
-        # up to h = 1/128 but which stagnated at 2D h = 1/256 on 2 ranks; "none" (the default
-        # until that is understood): one-level RAS, whose iterations grow with the ranks
+        # (2D h = 1/64 to 1/256: 25-28 per Newton step); "none" (the default, as the committed
+        # rank tables were measured): one-level RAS, whose iterations grow with the ranks
         # (docs/scale-out.md, results/solvers/ranks.csv).
         "coarse_space": Key(str, "none", one_of("none", "nested")),
         # 0: a coarse mesh with about 1/64 of the unknowns, 3 halvings in 2D and 2 in 3D
