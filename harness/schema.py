@@ -218,6 +218,10 @@ SCHEMA: dict[str, dict[str, Key]] = {
         # 0: a coarse mesh with about 1/64 of the unknowns, 3 halvings in 2D and 2 in 3D
         # (measured against 2 and 3, 4, docs/scale-out.md).
         "coarse_levels": Key(int, 0, nonnegative),
+        # With run.ranks > 1: GMRES's tolerance on the true residual relative to the right-hand
+        # side (the sequential solver's 1e-11). Below the residual's round-off floor (about
+        # 2.6e-11 at 2D h = 1/256) it stops at the floor and accepts within 1e3 times this.
+        "krylov_rtol": Key(float, 1e-11, positive),
     },
     "study": {
         "levels": Key(list, check=positive_ints),
