@@ -19,6 +19,7 @@ from harness.errors import SceneError
 from harness.fields import read_fields
 from harness.layout import REPO, Layout
 from harness.mms import MACROS, X, Y, derive, fe_errors, macros, material_constants, numeric, parse_exact
+from harness.norm_table import MMS_NORMS
 from harness.scene import load_scene
 from harness.script import main_script
 from harness.verification import BANDS, MMS_CASES, mms_errors, mms_rates
@@ -214,7 +215,7 @@ def coarse_studies(tmp_path_factory):
 
 
 @pytest.mark.parametrize("case", list(MMS_CASES))
-@pytest.mark.parametrize("norm", ["L2", "H1"])
+@pytest.mark.parametrize("norm", [n.key for n in MMS_NORMS])
 def test_manufactured_errors_converge_at_the_p1_rates(coarse_studies, case, norm):
     """Slopes over h = 1/4 ... 1/16 inside harness/verify.py's BANDS (2 -/+ 0.1 in L2,
     1 -/+ 0.05 in the H1 seminorm), for every field, and a straight log-log line."""
@@ -254,7 +255,7 @@ def test_freefem_errors_agree_with_an_independent_quadrature(coarse_studies, cas
     ours = fe_errors(fields.points, fields.triangles, {f: fields.field(f) for f in scene.fields}, exact)
     theirs = errors[(errors["case"] == case) & (errors["n"] == 8)].set_index(["field", "norm"])["error"]
     for field in scene.fields:
-        for norm in ("L2", "H1"):
+        for norm in (n.key for n in MMS_NORMS):
             # FreeFEM differentiates a P3 interpolant of the exact field, this quadrature the
             # field itself: a relative difference O(h^2), measured <= 2.2e-4 at h = 1/8.
             assert ours[field][norm] == pytest.approx(theirs[(field, norm)], rel=1e-3), (field, norm)
