@@ -19,6 +19,7 @@ from harness.study import Study
 if TYPE_CHECKING:
     from harness.frontier import CostStudy
 
+
 def plot_convergence(study: Study, target: Path) -> None:
     graded = study.table.iloc[:-1]
     h = graded["h"].to_numpy(dtype=float)

@@ -14,11 +14,12 @@ from harness.errors import RunError
 from harness.fields import Fields, read_fields
 from harness.freefem import freefem_version
 from harness.layout import Layout
-from harness.norm_table import FIELD_NAMES, error_column, error_names
+from harness.norm_table import FIELD_NAMES, TOTAL, error_column, error_names
 from harness.norms import error_norms
 from harness.rates import fitted_slope, pairwise_orders
 from harness.run import RunResult, check_solver_files
 from harness.scene import Scene
+
 
 @dataclass(frozen=True)
 class Study:
@@ -95,7 +96,7 @@ def error_table(runs: dict[int, RunResult], fields: tuple[str, ...],
             "wall_s": record.wall_s,
         }
         row.update({error_column(f): errors[f] for f in fields})
-        row[error_column("total")] = sum(errors.values())
+        row[error_column(TOTAL)] = sum(errors.values())
         rows.append(row)
     table = pd.DataFrame(rows)
     for name in error_names(fields):
