@@ -105,6 +105,7 @@ DATA_EFFECT: dict[tuple[str, str | None], str] = {
     ("thermal_contact", None): "thermal_contact",
     ("loads", "surface_charge"): "piezoelectric",
     ("loads", "charge_density"): "piezoelectric",
+    ("loads", "electrode_potential"): "piezoelectric",
     ("loads", "heat_source"): "thermal",
 }
 
@@ -160,6 +161,8 @@ SCHEMA: dict[str, dict[str, Key]] = {
         for name in (
             "traction_x", "traction_y", "traction_z", "surface_charge", "body_force_x",
             "body_force_y", "body_force_z", "charge_density", "heat_source",
+            # phi on the parts whose role is `electrode` [V] (the `ground` parts hold 0)
+            "electrode_potential",
         )
     },
     "contact": {
