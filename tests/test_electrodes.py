@@ -16,7 +16,7 @@ from harness.fields import read_state
 from physics_runs import DATA, solve
 
 # PZT-5H (freefem/materials/PZT-5H.idp): the constants the exact solution needs.
-C33, E33, BETA33 = 11.7e10, 23.3, 1470 * 8.8541878e-12
+C33, E33, BETA33 = 11.7e10, 23.3, 1.301565607e-8
 V = 100.0  # the case files' electrode_potential [V]
 
 
