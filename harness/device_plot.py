@@ -1,7 +1,7 @@
 """A picture of a device scene's solution (`python -m harness.device_plot results/strip_actuator/n16`):
 for a 2D body, phi, theta and the displacement on the deformed mesh (displacement and
 thickness exaggerated: a device is thin); for a 3D body, phi and theta on its bottom face
-(where a device meets its pad) and on its boundary seen from the side, from solution.vtu
+(where a device meets its pad) and on the section y = 0 (a convex body), from solution.vtu
 (no grid planes needed: any tetrahedral mesh)."""
 
 from __future__ import annotations
@@ -46,21 +46,31 @@ def render_2d(f: Fields, fig: plt.Figure) -> None:
         ax.set_aspect("equal")
 
 
+def section_y0(f: Fields, values: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    """The P1 field on the plane y = 0: where each tetrahedron edge crosses it, the point (x, z)
+    and the value interpolated along the edge (exact for P1); a convex section is their hull."""
+    edges = np.vstack([f.tetrahedra[:, [a, b]] for a in range(4) for b in range(a + 1, 4)])
+    edges = np.unique(np.sort(edges, axis=1), axis=0)
+    ya, yb = f.points[edges[:, 0], 1], f.points[edges[:, 1], 1]
+    crossing = (ya <= 0) != (yb <= 0)
+    a, b = edges[crossing, 0], edges[crossing, 1]
+    t = (ya[crossing] / (ya[crossing] - yb[crossing]))[:, None]
+    xz = (1 - t) * f.points[a][:, [0, 2]] + t * f.points[b][:, [0, 2]]
+    return xz, (1 - t[:, 0]) * values[a] + t[:, 0] * values[b]
+
+
 def render_3d(f: Fields, fig: plt.Figure) -> None:
     pts = f.points
     bottom = np.flatnonzero(np.abs(pts[:, 2] - pts[:, 2].min()) < 1e-6 * np.ptp(pts[:, 2]))
     face = Triangulation(1e3 * pts[bottom, 0], 1e3 * pts[bottom, 1])
-    # The side view: every node seen along y, drawn from the nodes of the half y >= 0, whose
-    # projection onto x-z covers the section through the axis (a body of revolution).
-    half = np.flatnonzero(pts[:, 1] >= -1e-12)
-    side = Triangulation(1e3 * pts[half, 0], 1e3 * pts[half, 2])
     axes = fig.subplots(2, 2)
     for row, (name, unit) in enumerate(PANELS):
         values = f.field(name)
         contour(axes[row, 0], face, values[bottom], f"{name} [{unit}]")
         axes[row, 0].set(title=f"{name} on the bottom face", xlabel="x [mm]", ylabel="y [mm]", aspect="equal")
-        contour(axes[row, 1], side, values[half], f"{name} [{unit}]")
-        axes[row, 1].set(title=f"{name}, nodes of y >= 0 seen along y", xlabel="x [mm]", ylabel="z [mm]")
+        xz, cut = section_y0(f, values)
+        contour(axes[row, 1], Triangulation(1e3 * xz[:, 0], 1e3 * xz[:, 1]), cut, f"{name} [{unit}]")
+        axes[row, 1].set(title=f"{name} on the section y = 0", xlabel="x [mm]", ylabel="z [mm]")
 
 
 def render(run: Path, target: Path) -> None:

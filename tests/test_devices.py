@@ -8,8 +8,9 @@ known from the constitutive law (docs/model.md section 2) without the solver:
   (beta33 + e33 . C^-1 . e33) V A/t (in 2D, plane strain: the 1-3 block of C);
 - the temperature stays below the foundation's theta_f (no heat source: the maximum
   principle of -div(k grad theta) = 0 with theta = 0 or the contact's Robin data);
-- the whole contact part closes, and the contact force changes by less than 1 % between the
-  two levels (measured 0.19 % for the strip, 0.30 % for the disc).
+- the whole contact part closes, and the contact force changes little between the two levels
+  (measured 0.19 % for the strip, 0.81 % for the disc, whose n = 2 has one tetrahedron
+  through the thickness: 2 % for both).
 """
 
 from __future__ import annotations
@@ -47,22 +48,23 @@ def test_the_strip_actuator_at_two_levels(tmp_path):
     for n, run in runs.items():
         charge = run["checks"]["electrode_charge"]   # the earthed stop takes only ~4e-3 of it
         assert low * volts * active_length / thickness < charge < high * volts * active_length / thickness, n
-        assert 0.0 < run["max_theta"] < 20.0, n
+        assert 0.0 < run["max_theta"] < 20.0, n   # measured 15.9 K at n = 2
         # The tip face, 0.7 mm, all closed (the reported measure sums its segments: round-off).
         assert run["active_measure"] == pytest.approx(thickness, rel=1e-12), n
-    assert runs[4]["contact_force"] == pytest.approx(runs[2]["contact_force"], rel=1e-2)
+    assert runs[4]["contact_force"] == pytest.approx(runs[2]["contact_force"], rel=2e-2)
 
 
 def test_the_disc_on_its_pad_at_two_levels(tmp_path):
     solve(CASES / "disc_pad.toml", 4, tmp_path)
     runs = levels(tmp_path, "disc_pad")
     low, high = permittivity_bounds(3)
-    volts, area, thickness = 200.0, np.pi * 5e-3**2, 1e-3  # cases/devices/disc.geo
+    # cases/devices/disc.geo: a 32-gon of circumradius 5 mm, 1 mm thick.
+    volts, area, thickness = 200.0, 16 * 5e-3**2 * np.sin(2 * np.pi / 32), 1e-3
     for n, run in runs.items():
         # The driven side's free charge: the electrode ring's and what the pad delivers.
         charge = run["checks"]["electrode_charge"] + run["charge_in_contact"]
         assert low * volts * area / thickness < charge < high * volts * area / thickness, n
-        assert run["max_theta"] < 20.0, n
-        # The pad's circle of radius 3 mm, as the level's inscribed polygon (0.45 % short at n = 2).
-        assert run["active_measure"] == pytest.approx(np.pi * 3e-3**2, rel=1e-2), n
-    assert runs[4]["contact_force"] == pytest.approx(runs[2]["contact_force"], rel=1e-2)
+        assert run["max_theta"] < 20.0, n   # measured 19.7 K at n = 2, 17.9 K at n = 4
+        # The pad: a regular 32-gon inscribed in the circle of radius 3 mm, all closed.
+        assert run["active_measure"] == pytest.approx(16 * 3e-3**2 * np.sin(2 * np.pi / 32), rel=1e-12), n
+    assert runs[4]["contact_force"] == pytest.approx(runs[2]["contact_force"], rel=2e-2)
