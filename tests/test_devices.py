@@ -21,6 +21,8 @@ from pathlib import Path
 import numpy as np
 import pytest
 
+from harness.cli import main
+from harness.contract import ExitCode
 from physics_runs import CASES, solve
 
 # PZT-5H (freefem/materials/PZT-5H.idp).
@@ -68,3 +70,10 @@ def test_the_disc_on_its_pad_at_two_levels(tmp_path):
         # The pad: a regular 32-gon inscribed in the circle of radius 3 mm, all closed.
         assert run["active_measure"] == pytest.approx(16 * 3e-3**2 * np.sin(2 * np.pi / 32), rel=1e-12), n
     assert runs[4]["contact_force"] == pytest.approx(runs[2]["contact_force"], rel=2e-2)
+
+
+def test_the_getfem_peer_agrees_on_the_strip(tmp_path):
+    """The independent GetFEM code on the strip at n = 2 (electrodes, a contact face of
+    normal +x): within the crosscheck's 1e-8 (measured 2.9e-12; the disc 1.6e-15)."""
+    code = main(["crosscheck", str(CASES / "strip_actuator.toml"), "--levels", "2", "--results", str(tmp_path)])
+    assert code == ExitCode.OK
