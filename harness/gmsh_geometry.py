@@ -11,6 +11,7 @@ level's Gamma_3 nodes are found by lying on them (checks.py), whatever the body'
 
 from __future__ import annotations
 
+import itertools
 import math
 from dataclasses import dataclass
 from pathlib import Path
@@ -24,8 +25,7 @@ from harness.errors import SceneError
 from harness.gmsh_api import session
 
 LEVEL_KINDS = ("split", "remesh")
-# Roles that hold the body still: a clamp, or a roller along every axis (a roller along x
-# on a part that is not a line x = const also stops the rotation; see docs/geometry.md).
+# Rollers along every axis hold the body like a clamp (docs/geometry.md says when they do).
 ROLLERS = ("roller_x", "roller_y", "roller_z")
 
 
@@ -38,14 +38,32 @@ class GmshGeometry:
     coarsest: int                   # the level n whose mesh (h = 1/n) split refines
     bounds: tuple[float, ...]       # gmsh's bounding box: xmin, ymin, zmin, xmax, ymax, zmax
     contact: tuple[tuple[tuple[float, ...], ...], ...] = ()  # Gamma_3's facets (d points of d coordinates)
+    # The coarsest mesh's vertices, edges, (3D: faces,) cells: the guards' node counts.
+    coarsest_counts: tuple[int, ...] = ()
     diagonals: str = "gmsh"         # read by code that asks a rectangle how it was cut
 
     @property
     def role_of_name(self) -> dict[str, str]:
         return dict(self.roles)
 
-    # The memory and disk guards (harness/guards.py) size a level by its bounding box: an
-    # overestimate of the nodes of any body that does not fill its box.
+    def nodes_at(self, n: int) -> int:
+        """Nodes of level n for the memory and disk guards (harness/guards.py): exact for a
+        split level n = coarsest 2^k (each split adds a node on every edge: V' = V + E; in 2D
+        E' = 2E + 3T, T' = 4T; in 3D E' = 2E + 3F + T, F' = 4F + 8T, T' = 8T), and that
+        count scaled by the remaining (n / (coarsest 2^k))^d between powers of 2 (remesh)."""
+        counts = list(self.coarsest_counts)
+        level = self.coarsest
+        while 2 * level <= n:
+            if self.dimension == 2:
+                v, e, t = counts
+                counts = [v + e, 2 * e + 3 * t, 4 * t]
+            else:
+                v, e, f, t = counts
+                counts = [v + e, 2 * e + 3 * f + t, 4 * f + 8 * t, 8 * t]
+            level *= 2
+        return math.ceil(counts[0] * (n / level) ** self.dimension)
+
+    # The bounding box: what a study that asks for a scene's extent gets.
     @property
     def width(self) -> float:
         return self.bounds[3] - self.bounds[0]
@@ -113,14 +131,18 @@ def parse_gmsh(table: dict[str, Any], case_dir: Path, levels: list[int], effects
         if role not in ROLE_LABELS:
             raise SceneError(f"geometry.roles.{name} = {role!r}: role must be one of {', '.join(ROLE_LABELS)}")
     used = set(roles.values())
-    if "clamped" not in used and not set(ROLLERS[:dimension]) <= used:
-        raise SceneError("geometry.roles: no part is clamped (nor rollers along every axis): the body could "
-                         "move as a rigid body")
+    # What holds the body: a clamp, rollers along every axis, or the penalised foundation with
+    # friction (its normal and tangential penalties, once pressed: tests/data/block.toml).
+    held = "clamped" in used or set(ROLLERS[:dimension]) <= used or (
+        "contact" in used and {"contact", "friction"} <= set(effects))
+    if not held:
+        raise SceneError("geometry.roles: no part is clamped (nor rollers along every axis, nor a contact part "
+                         "with friction): the body could move as a rigid body")
     if "contact" in effects and "contact" not in used:
         raise SceneError("geometry.roles: the contact part is empty (no name maps to role contact) but effect "
                          "'contact' is on")
     coarsest = table["coarsest"] or min(levels)
-    found, bounds, contact = read_geo(file, dimension, [n for n, r in roles.items() if r == "contact"])
+    found, bounds, contact, counts = read_geo(file, dimension, coarsest, [n for n, r in roles.items() if r == "contact"])
     facet = "curve" if dimension == 2 else "surface"
     for name in found:
         if name not in roles:
@@ -132,13 +154,14 @@ def parse_gmsh(table: dict[str, Any], case_dir: Path, levels: list[int], effects
     if "contact" in used and not contact:
         raise SceneError(f"{file.name}: the contact part is empty (no {facet} in it)")
     return GmshGeometry(file=file, dimension=dimension, roles=tuple(roles.items()), levels=table["levels"],
-                        coarsest=coarsest, bounds=bounds, contact=contact)
+                        coarsest=coarsest, bounds=bounds, contact=contact, coarsest_counts=counts)
 
 
-def read_geo(file: Path, dimension: int, contact_names: list[str]) -> tuple[
-        dict[str, list[int]], tuple[float, ...], tuple[tuple[tuple[float, ...], ...], ...]]:
+def read_geo(file: Path, dimension: int, coarsest: int, contact_names: list[str]) -> tuple[
+        dict[str, list[int]], tuple[float, ...], tuple[tuple[tuple[float, ...], ...], ...], tuple[int, ...]]:
     """The names of the file's physical groups of dimension d - 1 (with their entities),
-    its bounding box, and the facets of a mesh of the contact entities."""
+    its bounding box, the contact entities' facets and the coarsest level's mesh's counts
+    of vertices, edges, (faces,) cells (h = 1/coarsest)."""
     with session():
         try:
             gmsh.open(str(file))
@@ -148,8 +171,9 @@ def read_geo(file: Path, dimension: int, contact_names: list[str]) -> tuple[
         if drawn != dimension:
             raise SceneError(f"{file.name} draws a {drawn}D body but geometry.dimension = {dimension}")
         if dimension == 2:
-            z = gmsh.model.getBoundingBox(-1, -1)
-            if abs(z[2]) > 0 or abs(z[5]) > 0:
+            box = gmsh.model.getBoundingBox(-1, -1)
+            # OpenCASCADE pads its bounding boxes by ~1e-7: a body in z = 0 is within that.
+            if max(abs(box[2]), abs(box[5])) > 1e-6 * max(box[3] - box[0], box[4] - box[1]):
                 raise SceneError(f"{file.name}: a 2D body must lie in the plane z = 0")
         found: dict[str, list[int]] = {}
         for dim, tag in gmsh.model.getPhysicalGroups(dimension - 1):
@@ -159,18 +183,37 @@ def read_geo(file: Path, dimension: int, contact_names: list[str]) -> tuple[
                 found.setdefault(name, []).extend(entities)
         bounds = tuple(float(b) for b in gmsh.model.getBoundingBox(-1, -1))
         entities = [e for name in contact_names for e in found.get(name, [])]
+        gmsh.option.setNumber("Mesh.MeshSizeMax", 1.0 / coarsest)
+        try:
+            gmsh.model.mesh.generate(dimension)
+        except Exception as exc:
+            raise SceneError(f"gmsh cannot mesh {file.name} at h = 1/{coarsest}: {exc}") from None
+        counts = simplex_counts(dimension)
         contact = contact_facets(dimension, entities) if entities else ()
-    return found, bounds, contact
+    return found, bounds, contact, counts
+
+
+def simplex_counts(dimension: int) -> tuple[int, ...]:
+    """Vertices, edges, (faces,) cells of gmsh's current mesh of the body."""
+    cells = []
+    for _, entity in gmsh.model.getEntities(dimension):
+        for kind, _, nodes in zip(*gmsh.model.mesh.getElements(dimension, entity)):
+            per = gmsh.model.mesh.getElementProperties(int(kind))[3]
+            cells.append(np.asarray(nodes, dtype=np.int64).reshape(-1, per)[:, :dimension + 1])
+    if not cells:
+        raise SceneError(f"gmsh made no {dimension}D elements")
+    cells = np.vstack(cells)
+    counts = [len(np.unique(cells))]
+    for k in range(2, dimension + 1):  # edges, then (3D) faces
+        pieces = np.vstack([cells[:, list(c)] for c in itertools.combinations(range(dimension + 1), k)])
+        counts.append(len(np.unique(np.sort(pieces, axis=1), axis=0)))
+    return tuple(counts + [len(cells)])
 
 
 def contact_facets(dimension: int, entities: list[int]) -> tuple[tuple[tuple[float, ...], ...], ...]:
-    """The contact entities meshed at gmsh's default size: straight segments or flat
-    triangles that cover them exactly when they are straight or flat (checked per level by
+    """The facets of the meshed contact entities: straight segments or flat triangles that
+    cover them exactly when they are straight or flat (checked per level by
     harness/gmsh_mesh.py)."""
-    try:
-        gmsh.model.mesh.generate(dimension - 1)
-    except Exception as exc:
-        raise SceneError(f"gmsh cannot mesh the contact part: {exc}") from None
     tags, coords, _ = gmsh.model.mesh.getNodes()
     where = dict(zip((int(t) for t in tags), coords.reshape(-1, 3)[:, :dimension]))
     out = []

@@ -72,7 +72,9 @@ def generate(geometry: GmshGeometry, n: int) -> SimplexMesh:
             if geometry.levels == "split":
                 gmsh.option.setNumber("Mesh.MeshSizeMax", 1.0 / geometry.coarsest)
             else:
-                gmsh.option.setNumber("Mesh.MeshSizeMax", 1.0 / n)
+                # gmsh applies the factor after the bound: every size of the file, and the
+                # bound 1/coarsest, times coarsest / n, so that no element exceeds h = 1/n.
+                gmsh.option.setNumber("Mesh.MeshSizeMax", 1.0 / geometry.coarsest)
                 gmsh.option.setNumber("Mesh.MeshSizeFactor", geometry.coarsest / n)
             gmsh.model.mesh.generate(d)
             for _ in range(refinements):
@@ -109,6 +111,8 @@ def read_cells(d: int) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
             owners.append(np.full(len(block), entity))
     if not cells:
         raise MeshError("gmsh made no elements")
+    if d == 2 and np.abs(points[:, 2]).max() > 0:
+        raise MeshError("a 2D mesh has nodes off the plane z = 0")
     return points[:, :d], np.vstack(cells), np.concatenate(owners)
 
 
@@ -238,7 +242,8 @@ def check_flat_contact(points: np.ndarray, facets: np.ndarray, labels: np.ndarra
     normals = outward_normals(points, facets[on])
     mean = normals.mean(axis=0)
     mean /= np.linalg.norm(mean)
-    angle = np.arccos(np.clip(normals @ mean, -1.0, 1.0))
+    # From the chord |n - mean|: arccos of a dot product near 1 would turn round-off 1e-16 into 1e-8 rad.
+    angle = 2.0 * np.arcsin(np.clip(np.linalg.norm(normals - mean, axis=1) / 2.0, 0.0, 1.0))
     worst = int(np.argmax(angle))
     if angle[worst] > FLAT:
         where = place(points[facets[on][worst]])
@@ -273,14 +278,10 @@ def quality(points: np.ndarray, cells: np.ndarray) -> dict[str, float]:
     dihedral = [np.degrees(np.pi - np.arccos(np.clip(np.einsum("ij,ij->i", normals[i], normals[j]), -1.0, 1.0)))
                 for i in range(4) for j in range(i + 1, 4)]
     inradius = 3 * volume / np.sum(areas, axis=0)
-    circumradius = np.array([circumsphere_radius(t) for t in p])
+    edges = p[:, 1:] - p[:, :1]
+    centre = np.linalg.solve(2 * edges, (edges**2).sum(axis=2)[..., None])[..., 0]  # from vertex 0
+    circumradius = np.linalg.norm(centre, axis=1)
     return {"min_dihedral_deg": float(np.min(dihedral)), "max_aspect": float((circumradius / (3 * inradius)).max())}
-
-
-def circumsphere_radius(t: np.ndarray) -> float:
-    edges = t[1:] - t[0]
-    centre = np.linalg.solve(2 * edges, (edges**2).sum(axis=1))
-    return float(np.linalg.norm(centre))
 
 
 def write_msh(mesh: SimplexMesh, path: Path) -> None:

@@ -9,7 +9,7 @@ from __future__ import annotations
 import os
 from dataclasses import replace
 from pathlib import Path
-from typing import Sequence
+from typing import Callable, Sequence
 
 import gmsh
 import numpy as np
@@ -236,36 +236,32 @@ def build_box_mesh(box: Box, n: int, directory: Path) -> MeshSummary:
     for role in set(areas) | set(expected):
         if not np.isclose(areas.get(role, 0.0), expected.get(role, 0.0), rtol=1e-9, atol=1e-12):
             raise MeshError(f"mesh n={n}: role {role} covers {areas.get(role, 0.0):.6g}, its patches {expected.get(role, 0.0):.6g}")
-    directory.mkdir(parents=True, exist_ok=True)
-    target = mesh_path(directory, n)
-    need_disk(directory, mesh_file_bytes(box, n), f"the mesh of n={n}")
-    tmp = sibling_temp(target).with_suffix(".msh")
-    try:
-        box_mesh.write_msh(mesh, tmp)
-        if not target.exists() or target.read_bytes() != tmp.read_bytes():
-            os.replace(tmp, target)
-    except OSError as exc:
-        raise fault(exc, f"mesh of n={n}") from None
-    finally:
-        tmp.unlink(missing_ok=True)
+    target = write_level(lambda tmp: box_mesh.write_msh(mesh, tmp), box, n, directory)
     return MeshSummary(path=target, n=n, nodes=len(mesh.points), triangles=len(mesh.tetrahedra), role_lengths=areas)
 
 
-def build_gmsh_mesh(geometry: GmshGeometry, n: int, directory: Path) -> MeshSummary:
-    """Level n of a scene drawn in gmsh (harness/gmsh_mesh.py), its labels the roles'."""
-    mesh = gmsh_mesh.generate(geometry, n)
+def write_level(write: Callable[[Path], None], geometry: Box | GmshGeometry, n: int, directory: Path) -> Path:
+    """mesh_n<n>.msh in `directory` by `write` into a temp file, replacing the level's file
+    only when the bytes change (a cached run keyed by the mesh's checksum stays valid)."""
     directory.mkdir(parents=True, exist_ok=True)
     target = mesh_path(directory, n)
     need_disk(directory, mesh_file_bytes(geometry, n), f"the mesh of n={n}")
     tmp = sibling_temp(target).with_suffix(".msh")
     try:
-        gmsh_mesh.write_msh(mesh, tmp)
+        write(tmp)
         if not target.exists() or target.read_bytes() != tmp.read_bytes():
             os.replace(tmp, target)
     except OSError as exc:
         raise fault(exc, f"mesh of n={n}") from None
     finally:
         tmp.unlink(missing_ok=True)
+    return target
+
+
+def build_gmsh_mesh(geometry: GmshGeometry, n: int, directory: Path) -> MeshSummary:
+    """Level n of a scene drawn in gmsh (harness/gmsh_mesh.py), its labels the roles'."""
+    mesh = gmsh_mesh.generate(geometry, n)
+    target = write_level(lambda tmp: gmsh_mesh.write_msh(mesh, tmp), geometry, n, directory)
     return MeshSummary(path=target, n=n, nodes=len(mesh.points), triangles=len(mesh.cells),
                        role_lengths=gmsh_mesh.role_measures(mesh), quality=mesh.quality)
 
