@@ -1,8 +1,7 @@
 """A picture of a device scene's solution (`python -m harness.device_plot results/strip_actuator/n16`):
 for a 2D body, phi, theta and the displacement on the deformed mesh (displacement and
 thickness exaggerated: a device is thin); for a 3D body, phi and theta on its bottom face
-(where a device meets its pad) and on the section y = 0 (a convex body), from solution.vtu
-(no grid planes needed: any tetrahedral mesh)."""
+(where a device meets its pad) and on the section y = 0 (harness/slices.py), from solution.vtu."""
 
 from __future__ import annotations
 
@@ -17,6 +16,7 @@ import numpy as np  # noqa: E402
 from matplotlib.tri import Triangulation  # noqa: E402
 
 from harness.fields import Fields, read_fields  # noqa: E402
+from harness.slices import plane  # noqa: E402
 
 PANELS = (("phi", "V"), ("theta", "K"))
 
@@ -46,30 +46,18 @@ def render_2d(f: Fields, fig: plt.Figure) -> None:
         ax.set_aspect("equal")
 
 
-def section_y0(f: Fields, values: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
-    """The P1 field on the plane y = 0: where each tetrahedron edge crosses it, the point (x, z)
-    and the value interpolated along the edge (exact for P1); a convex section is their hull."""
-    edges = np.vstack([f.tetrahedra[:, [a, b]] for a in range(4) for b in range(a + 1, 4)])
-    edges = np.unique(np.sort(edges, axis=1), axis=0)
-    ya, yb = f.points[edges[:, 0], 1], f.points[edges[:, 1], 1]
-    crossing = (ya <= 0) != (yb <= 0)
-    a, b = edges[crossing, 0], edges[crossing, 1]
-    t = (ya[crossing] / (ya[crossing] - yb[crossing]))[:, None]
-    xz = (1 - t) * f.points[a][:, [0, 2]] + t * f.points[b][:, [0, 2]]
-    return xz, (1 - t[:, 0]) * values[a] + t[:, 0] * values[b]
-
-
 def render_3d(f: Fields, fig: plt.Figure) -> None:
     pts = f.points
     bottom = np.flatnonzero(np.abs(pts[:, 2] - pts[:, 2].min()) < 1e-6 * np.ptp(pts[:, 2]))
     face = Triangulation(1e3 * pts[bottom, 0], 1e3 * pts[bottom, 1])
+    cut = plane(f, 1, 0.0)
     axes = fig.subplots(2, 2)
     for row, (name, unit) in enumerate(PANELS):
         values = f.field(name)
         contour(axes[row, 0], face, values[bottom], f"{name} [{unit}]")
         axes[row, 0].set(title=f"{name} on the bottom face", xlabel="x [mm]", ylabel="y [mm]", aspect="equal")
-        xz, cut = section_y0(f, values)
-        contour(axes[row, 1], Triangulation(1e3 * xz[:, 0], 1e3 * xz[:, 1]), cut, f"{name} [{unit}]")
+        contour(axes[row, 1], Triangulation(1e3 * cut.coords[:, 0], 1e3 * cut.coords[:, 1], cut.triangles),
+                cut.of(values), f"{name} [{unit}]")
         axes[row, 1].set(title=f"{name} on the section y = 0", xlabel="x [mm]", ylabel="z [mm]")
 
 
