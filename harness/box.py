@@ -83,6 +83,23 @@ class Box:
                     found |= {patch.a0, patch.a1} if first else {patch.b0, patch.b1}
         return sorted(found)
 
+    def contact_measure(self) -> float:
+        """|Gamma_3|: the area of the contact patches."""
+        return self.role_areas().get("contact", 0.0)
+
+    def contact_mask(self, points: np.ndarray) -> np.ndarray:
+        """Which points lie on a contact patch."""
+        tol = 1e-6 * max(self.lengths)  # solution.vtu's coordinates are single precision
+        on = np.zeros(len(points), dtype=bool)
+        for name, patches in self.faces.items():
+            axis = "xyz".index(name[0])
+            a, b = (i for i in range(3) if i != axis)
+            plane = np.abs(points[:, axis] - (0.0 if name[1] == "0" else self.lengths[axis])) < tol
+            for patch in (p for p in patches if p.role == "contact"):
+                on |= plane & (points[:, a] > patch.a0 - tol) & (points[:, a] < patch.a1 + tol) \
+                    & (points[:, b] > patch.b0 - tol) & (points[:, b] < patch.b1 + tol)
+        return on
+
     def role_areas(self) -> dict[str, float]:
         areas = dict.fromkeys(ROLE_LABELS, 0.0)
         for patches in self.faces.values():

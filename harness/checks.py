@@ -11,6 +11,7 @@ import numpy as np
 
 from harness.errors import HarnessError
 from harness.fields import Fields
+from harness.gmsh_mesh import boundary_facets, outward_normals, signed_measures
 from harness.record import RunRecord
 from harness.scene import Scene
 
@@ -44,42 +45,39 @@ TOLERANCES: dict[str, tuple[float, str]] = {
 
 
 def contact_nodes(scene: Scene, fields: Fields) -> list[np.ndarray]:
-    """Indices of the nodes of each contact segment (all on the bottom, y = 0, nu = (0, -1)),
-    sorted along x, so consecutive nodes bound a Gamma_3 edge."""
-    if any(seg.role == "contact" for seg in scene.geometry.top):
-        raise HarnessError(f"{scene.source}: the stress checks read Gamma_3 on the bottom side only")
-    pts = fields.points
-    out = []
-    for seg in scene.geometry.bottom:
-        if seg.role != "contact":
-            continue
-        on = np.flatnonzero((np.abs(pts[:, 1]) < 1e-12) & (pts[:, 0] >= seg.x0 - 1e-12) & (pts[:, 0] <= seg.x1 + 1e-12))
-        out.append(on[np.argsort(pts[on, 0])])
-    return out
+    """Indices of the nodes on Gamma_3, whatever its place and normal (the scene's geometry
+    says which points lie on it: harness/segments.py, box.py, gmsh_geometry.py); in 2D sorted
+    along the tangent, so consecutive nodes of one straight part bound a Gamma_3 edge."""
+    on = np.flatnonzero(scene.geometry.contact_mask(fields.points))
+    if scene.dimension == 2 and len(on):
+        normal = contact_normal(scene, fields)
+        along = fields.points[on, :2] @ np.array([-normal[1], normal[0]])
+        on = on[np.argsort(along, kind="stable")]
+    return [on]
+
+
+def contact_normal(scene: Scene, fields: Fields) -> np.ndarray:
+    """Gamma_3's outward unit normal, from the mesh's boundary facets on it (their mean: the
+    contact part is flat, harness/gmsh_mesh.py check_flat_contact)."""
+    cells = fields.cells.copy()
+    negative = signed_measures(fields.points, cells) < 0
+    cells[negative, -1], cells[negative, -2] = cells[negative, -2], cells[negative, -1].copy()
+    facets = boundary_facets(cells)
+    facets = facets[scene.geometry.contact_mask(fields.points)[facets].all(axis=1)]
+    if not len(facets):
+        raise HarnessError(f"{fields.source}: no boundary facet lies on Gamma_3")
+    mean = outward_normals(fields.points, facets).mean(axis=0)
+    return mean / np.linalg.norm(mean)
 
 
 def contact_node_count(scene: Scene, fields: Fields) -> int:
-    """How many nodes lie on Gamma_3: on a contact segment (2D) or patch (a box)."""
-    if scene.dimension != 3:
-        return len(np.unique(np.concatenate(contact_nodes(scene, fields))))
-    box, pts = scene.geometry, fields.points
-    tol = 1e-6 * max(box.lengths)  # solution.vtu's coordinates are single precision
-    on = np.zeros(len(pts), dtype=bool)
-    for name, patches in box.faces.items():
-        axis = "xyz".index(name[0])
-        a, b = (i for i in range(3) if i != axis)
-        plane = np.abs(pts[:, axis] - (0.0 if name[1] == "0" else box.lengths[axis])) < tol
-        for patch in (p for p in patches if p.role == "contact"):
-            on |= plane & (pts[:, a] > patch.a0 - tol) & (pts[:, a] < patch.a1 + tol) \
-                & (pts[:, b] > patch.b0 - tol) & (pts[:, b] < patch.b1 + tol)
-    return int(on.sum())
+    """How many nodes lie on Gamma_3."""
+    return int(scene.geometry.contact_mask(fields.points).sum())
 
 
 def contact_length(scene: Scene) -> float:
-    """|Gamma_3|: a length in 2D, an area for a box (harness/box.py)."""
-    if scene.dimension == 3:
-        return scene.geometry.role_areas().get("contact", 0.0)
-    return sum(seg.length for seg in scene.geometry.bottom + scene.geometry.top if seg.role == "contact")
+    """|Gamma_3|: a length in 2D, an area in 3D."""
+    return scene.geometry.contact_measure()
 
 
 # Of the largest flux per unit length each conductance could carry (checks.idp's
@@ -122,15 +120,19 @@ def physical_checks(record: RunRecord, scene: Scene) -> dict[str, Any]:
     natural = {name: c.get(f"natural_{name}_flux", 0.0) for name in ("heat", "charge")}
     flows = {"heat": (record.heat_in_contact or 0.0, c.get("heat_source", 0.0), c.get("heat_out_dirichlet", 0.0)),
              "charge": (record.charge_in_contact or 0.0, c.get("charge_source", 0.0), c.get("charge_out_dirichlet", 0.0))}
+    # A driven electrode's charge leaves through the ground and the clamps: the net charge out
+    # of the Dirichlet parts is then ~0 and the electrode's own charge is the flow's size.
+    electrode = {"heat": 0.0, "charge": abs(c.get("electrode_charge", 0.0))}
+    driven_electrode = {"heat": False, "charge": scene.sections.loads.electrode_potential != 0}
     for name, (into, source, leaving) in flows.items():
         # FreeFEM's {name}_imbalance, with a floor for a contact that carries nothing.
-        scale = max(abs(into), abs(source), abs(leaving), FLOOR * natural[name] * length, NOTHING_FLOWS)
+        scale = max(abs(into), abs(source), abs(leaving), electrode[name], FLOOR * natural[name] * length, NOTHING_FLOWS)
         out[f"{name}_imbalance"] = abs(into + source - leaving) / scale
         # Nothing drives this flow (no conductance drive, no source: `block`'s phi_f = theta_f = 0,
         # `heated`'s charge, `heat` without a contact part): the exact flow is zero and every term
         # round-off of the bulk flux, whose size run.json does not give; the balance then has
         # nothing to compare with.
-        out[f"{name}_driven"] = natural[name] * length > 0 or abs(source) > 0
+        out[f"{name}_driven"] = natural[name] * length > 0 or abs(source) > 0 or driven_electrode[name]
     open_ok = True
     for name in ("heat", "charge"):
         found = c.get(f"max_{name}_flux_open", math.nan)

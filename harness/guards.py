@@ -6,6 +6,7 @@ from __future__ import annotations
 import math
 import os
 from pathlib import Path
+from typing import Callable
 
 import numpy as np
 
@@ -72,21 +73,36 @@ def mesh_nodes(width: float, height: float, n: int, element: str = "P1", depth: 
     return nodes * (math.ceil(depth * k) + 1) if depth is not None else nodes
 
 
+NodesAt = Callable[[int], int]
+
+
+def level_nodes(width: float, height: float, n: int, element: str, depth: float | None,
+                nodes_at: NodesAt | None) -> int:
+    """Nodes of level n: the scene's own count when it has one, else the structured box's
+    (P2: the vertices of the mesh twice as fine)."""
+    if nodes_at is None:
+        return mesh_nodes(width, height, n, element, depth)
+    return nodes_at(2 * n if element == "P2" else n)
+
+
 def memory_estimate(width: float, height: float, n: int, effects: tuple[str, ...], element: str = "P1",
-                    depth: float | None = None, factorises: bool = True, multigrid: bool = False) -> tuple[int, float]:
+                    depth: float | None = None, factorises: bool = True, multigrid: bool = False,
+                    nodes_at: NodesAt | None = None) -> tuple[int, float]:
     """(dofs, peak bytes) of one level's FreeFEM run; 3D when `depth` is given; `factorises`:
     whether the linear solver factorises the Newton matrix (every solver but a PETSc Krylov
     method with an iterative preconditioner); `multigrid`: whether that preconditioner is a
-    geometric multigrid."""
+    geometric multigrid; `nodes_at`: the scene's own node count of a level (a gmsh scene),
+    instead of the structured box width x height (x depth)."""
+    nodes = level_nodes(width, height, n, element, depth, nodes_at)
     if not factorises:
         dimension = 2 if depth is None else 3
-        dofs = unknowns_per_node(effects, dimension) * mesh_nodes(width, height, n, element, depth)
+        dofs = unknowns_per_node(effects, dimension) * nodes
         per_dof = (BYTES_PER_DOF_MULTIGRID if multigrid else BYTES_PER_DOF_ITERATIVE)[dimension]
         return dofs, per_dof * dofs
     if depth is None:
-        dofs = unknowns_per_node(effects) * mesh_nodes(width, height, n, element)
+        dofs = unknowns_per_node(effects) * nodes
         return dofs, BASE_BYTES + BYTES_PER_DOF * dofs
-    dofs = unknowns_per_node(effects, 3) * mesh_nodes(width, height, n, element, depth)
+    dofs = unknowns_per_node(effects, 3) * nodes
     return dofs, BYTES_PER_DOF_3D * dofs * max(1.0, dofs / DOFS_3D_MEASURED) ** (1 / 3)
 
 
@@ -112,14 +128,14 @@ def available_memory() -> float:
 
 def check_memory(width: float, height: float, levels: tuple[int, ...], effects: tuple[str, ...],
                  element: str = "P1", available: float | None = None, depth: float | None = None,
-                 factorises: bool = True, multigrid: bool = False) -> None:
+                 factorises: bool = True, multigrid: bool = False, nodes_at: NodesAt | None = None) -> None:
     """Refuse, before meshing, a level set whose finest level does not fit in the memory left.
     The next finer-but-one level runs alongside it (the pipelined chain starts the finest
     while its coarser level runs; a parallel study runs two at once), so its peak counts too."""
     finest, *rest = sorted(set(levels), reverse=True)
-    dofs, need = memory_estimate(width, height, finest, effects, element, depth, factorises, multigrid)
+    dofs, need = memory_estimate(width, height, finest, effects, element, depth, factorises, multigrid, nodes_at)
     if rest:
-        need += memory_estimate(width, height, rest[0], effects, element, depth, factorises, multigrid)[1]
+        need += memory_estimate(width, height, rest[0], effects, element, depth, factorises, multigrid, nodes_at)[1]
     have = available_memory() if available is None else available
     if need > have:
         raise EnvironmentFault(
@@ -134,7 +150,8 @@ def geometry_depth(geometry: object) -> float | None:
 def mesh_file_bytes(geometry: object, n: int) -> int:
     width, height = getattr(geometry, "width", 1.0), getattr(geometry, "height", 1.0)
     depth = geometry_depth(geometry)
-    return MSH_BYTES_PER_NODE[2 if depth is None else 3] * mesh_nodes(width, height, n, depth=depth)
+    nodes = level_nodes(width, height, n, "P1", depth, getattr(geometry, "nodes_at", None))
+    return MSH_BYTES_PER_NODE[2 if depth is None else 3] * nodes
 
 
 def need_disk(directory: Path, size: int, what: str) -> None:

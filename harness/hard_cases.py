@@ -192,7 +192,7 @@ def case_cost(case: Path, levels: Sequence[int] | None = None) -> float:
     scene = load_scene(case)
     geometry = scene.geometry
     return memory_estimate(geometry.width, geometry.height, max(levels or scene.levels), scene.effects,
-                           scene.element, geometry_depth(geometry))[0]
+                           scene.element, geometry_depth(geometry), nodes_at=getattr(geometry, "nodes_at", None))[0]
 
 
 def case_files(names: Sequence[str]) -> list[Path]:

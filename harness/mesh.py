@@ -7,10 +7,9 @@ gmsh keeps global state and is not thread-safe: call `build_mesh` from one threa
 from __future__ import annotations
 
 import os
-import threading
 from dataclasses import replace
 from pathlib import Path
-from typing import Sequence
+from typing import Callable, Sequence
 
 import gmsh
 import numpy as np
@@ -23,13 +22,13 @@ from harness.mesh_check import MeshSummary, check_mesh
 from harness.schema import ROLE_LABELS
 from harness.segments import Geometry
 from harness.box import Box
-from harness import box_mesh, signals
+from harness import box_mesh, gmsh_mesh, signals
+from harness.gmsh_geometry import GmshGeometry
+from harness.gmsh_api import GMSH  # noqa: F401  (re-exported: whoever meshes from a thread holds it)
 
 # gmsh's transfinite arrangement that cuts each cell along the requested diagonal.
 ARRANGEMENT = {"SW-NE": "Right", "NW-SE": "Left"}
 BODY_LABEL = 1
-# gmsh's state is per process and not thread-safe: whoever meshes from a thread holds this.
-GMSH = threading.Lock()
 
 
 def mesh_path(directory: Path, n: int) -> Path:
@@ -47,7 +46,7 @@ def coarser_levels(n: int, count: int, coarsest: int = 2) -> list[int]:
     return levels
 
 
-def coarser_meshes(geometry: Geometry | Box, n: int, count: int, coarsest: int, directory: Path,
+def coarser_meshes(geometry: Geometry | Box | GmshGeometry, n: int, count: int, coarsest: int, directory: Path,
                    make: bool = True) -> list[Path]:
     """The meshes of `coarser_levels(n, count, coarsest)`, finest first; made (or refreshed)
     only with `make`: a run's cache key needs their names, not their files (2D n = 512's four
@@ -59,11 +58,13 @@ def coarser_meshes(geometry: Geometry | Box, n: int, count: int, coarsest: int, 
         return [build_mesh(geometry, m, directory).path for m in levels]
 
 
-def build_mesh(geometry: Geometry | Box, n: int, directory: Path) -> MeshSummary:
+def build_mesh(geometry: Geometry | Box | GmshGeometry, n: int, directory: Path) -> MeshSummary:
     """Write mesh_n<n>.msh into `directory` (only replacing it if the bytes change) and
     return its checked summary."""
     if isinstance(geometry, Box):
         return build_box_mesh(geometry, n, directory)
+    if isinstance(geometry, GmshGeometry):
+        return build_gmsh_mesh(geometry, n, directory)
     unstructured = geometry.diagonals == "unstructured"
     cells = {} if unstructured else grid_cells(geometry, n)
     directory.mkdir(parents=True, exist_ok=True)
@@ -235,19 +236,34 @@ def build_box_mesh(box: Box, n: int, directory: Path) -> MeshSummary:
     for role in set(areas) | set(expected):
         if not np.isclose(areas.get(role, 0.0), expected.get(role, 0.0), rtol=1e-9, atol=1e-12):
             raise MeshError(f"mesh n={n}: role {role} covers {areas.get(role, 0.0):.6g}, its patches {expected.get(role, 0.0):.6g}")
+    target = write_level(lambda tmp: box_mesh.write_msh(mesh, tmp), box, n, directory)
+    return MeshSummary(path=target, n=n, nodes=len(mesh.points), triangles=len(mesh.tetrahedra), role_lengths=areas)
+
+
+def write_level(write: Callable[[Path], None], geometry: Box | GmshGeometry, n: int, directory: Path) -> Path:
+    """mesh_n<n>.msh in `directory` by `write` into a temp file, replacing the level's file
+    only when the bytes change (a cached run keyed by the mesh's checksum stays valid)."""
     directory.mkdir(parents=True, exist_ok=True)
     target = mesh_path(directory, n)
-    need_disk(directory, mesh_file_bytes(box, n), f"the mesh of n={n}")
+    need_disk(directory, mesh_file_bytes(geometry, n), f"the mesh of n={n}")
     tmp = sibling_temp(target).with_suffix(".msh")
     try:
-        box_mesh.write_msh(mesh, tmp)
+        write(tmp)
         if not target.exists() or target.read_bytes() != tmp.read_bytes():
             os.replace(tmp, target)
     except OSError as exc:
         raise fault(exc, f"mesh of n={n}") from None
     finally:
         tmp.unlink(missing_ok=True)
-    return MeshSummary(path=target, n=n, nodes=len(mesh.points), triangles=len(mesh.tetrahedra), role_lengths=areas)
+    return target
+
+
+def build_gmsh_mesh(geometry: GmshGeometry, n: int, directory: Path) -> MeshSummary:
+    """Level n of a scene drawn in gmsh (harness/gmsh_mesh.py), its labels the roles'."""
+    mesh = gmsh_mesh.generate(geometry, n)
+    target = write_level(lambda tmp: gmsh_mesh.write_msh(mesh, tmp), geometry, n, directory)
+    return MeshSummary(path=target, n=n, nodes=len(mesh.points), triangles=len(mesh.cells),
+                       role_lengths=gmsh_mesh.role_measures(mesh), quality=mesh.quality)
 
 
 def unstructured_box(box: Box, n: int) -> tuple[np.ndarray, np.ndarray]:

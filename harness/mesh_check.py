@@ -2,7 +2,7 @@
 
 from __future__ import annotations
 
-from dataclasses import dataclass
+from dataclasses import dataclass, field
 from pathlib import Path
 
 import meshio
@@ -20,6 +20,8 @@ class MeshSummary:
     nodes: int
     triangles: int
     role_lengths: dict[str, float]
+    # min angle (2D) or dihedral (3D) in degrees and max aspect (gmsh scenes: harness/gmsh_mesh.py)
+    quality: dict[str, float] = field(default_factory=dict)
 
 
 def check_mesh(path: Path, geometry: Geometry, n: int) -> MeshSummary:

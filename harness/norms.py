@@ -22,8 +22,16 @@ from harness.fields import Fields
 from harness.norm_table import MMS_NORMS, measure_of
 
 
-def kuhn_grid(coarse: Fields) -> tuple[np.ndarray, float]:
-    return grid_index(coarse.points)
+def kuhn_located(coarse: Fields, at: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    """The Kuhn point location of box_mesh.kuhn_weights, for a coarse mesh that is a Kuhn
+    mesh: its nodes on a grid and every located tetrahedron one of its own (a gmsh mesh whose
+    nodes happen to lie on a grid, cut another way, is not; MeshError then)."""
+    grid, spacing = grid_index(coarse.points)
+    nodes, weights = kuhn_weights(coarse.points, grid, spacing, at)
+    own = {tuple(t) for t in np.sort(coarse.tetrahedra, axis=1).tolist()}
+    if any(tuple(t) not in own for t in np.unique(np.sort(nodes, axis=1), axis=0).tolist()):
+        raise MeshError(f"{coarse.source}: not a Kuhn mesh")
+    return nodes, weights
 
 
 def gradients(points: np.ndarray, triangles: np.ndarray, values: np.ndarray) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
@@ -108,8 +116,9 @@ def transfer_weights(coarse: Fields, points: np.ndarray) -> tuple[np.ndarray, np
     """
     tri = Triangulation(coarse.points[:, 0], coarse.points[:, 1], coarse.triangles)
     found = tri.get_trifinder()(points[:, 0], points[:, 1])
-    if np.any(found < 0):
-        raise FieldsError(f"{coarse.source}: some fine nodes lie outside the coarse mesh")
+    missing = np.flatnonzero(found < 0)
+    if len(missing):
+        found[missing] = nearest_simplices(coarse.points[:, :2], coarse.triangles, points[missing, :2], coarse.source)
     corners = coarse.triangles[found]  # (N, 3)
     a, b, c = (coarse.points[corners[:, i], :2] for i in range(3))
     twice = (b[:, 0] - a[:, 0]) * (c[:, 1] - a[:, 1]) - (c[:, 0] - a[:, 0]) * (b[:, 1] - a[:, 1])
@@ -117,6 +126,30 @@ def transfer_weights(coarse: Fields, points: np.ndarray) -> tuple[np.ndarray, np
     wb = ((p[:, 0] - a[:, 0]) * (c[:, 1] - a[:, 1]) - (c[:, 0] - a[:, 0]) * (p[:, 1] - a[:, 1])) / twice
     wc = ((b[:, 0] - a[:, 0]) * (p[:, 1] - a[:, 1]) - (p[:, 0] - a[:, 0]) * (b[:, 1] - a[:, 1])) / twice
     return corners, np.column_stack([1.0 - wb - wc, wb, wc])
+
+
+# How far outside every coarse simplex a fine node may lie, in barycentric units (a fraction
+# of the simplex), and still take the P1 extension of the nearest one: a boundary node of a
+# tilted straight side is outside by round-off (solution.vtu holds single-precision
+# coordinates: ~1e-6), one of a curved side meshed anew or split onto the curve by ~h / R.
+OUTSIDE = 0.5
+
+
+def nearest_simplices(corners_of: np.ndarray, cells: np.ndarray, at: np.ndarray, source: object) -> np.ndarray:
+    """For each point of `at`, the simplex whose smallest barycentric coordinate of the point
+    is largest: the one holding it, or the nearest when it lies just outside them all."""
+    corners = corners_of[cells]                                        # (M, d + 1, d)
+    to_weights = np.linalg.inv(np.swapaxes(corners[:, 1:] - corners[:, :1], 1, 2))
+    best = np.empty(len(at), dtype=np.int64)
+    for start in range(0, len(at), 256):  # 256 points x M simplices at a time
+        chunk = at[start:start + 256]
+        w = np.einsum("mij,pmj->pmi", to_weights, chunk[:, None, :] - corners[None, :, 0])
+        smallest = np.minimum(1.0 - w.sum(axis=-1), w.min(axis=-1))    # (P, M)
+        pick = smallest.argmax(axis=1)
+        if (smallest[np.arange(len(chunk)), pick] < -OUTSIDE).any():
+            raise FieldsError(f"{source}: some fine nodes lie outside the coarse mesh")
+        best[start:start + 256] = pick
+    return best
 
 
 def transfer(coarse: Fields, name: str, points: np.ndarray,
@@ -148,13 +181,17 @@ def simplex_seminorm(points: np.ndarray, cells: np.ndarray, values: np.ndarray, 
     return float(np.sqrt(np.sum(volume * density)))
 
 
-def tetrahedron_weights(coarse: Fields, at: np.ndarray, tol: float = 1e-5) -> tuple[np.ndarray, np.ndarray]:
+def tetrahedron_weights(coarse: Fields, at: np.ndarray, tol: float = 1e-5,
+                        outside: float | None = OUTSIDE) -> tuple[np.ndarray, np.ndarray]:
     """Point location in an unstructured tetrahedral mesh: for each point of `at`, the four
     nodes of the coarse tetrahedron holding it and its barycentric weights. The tetrahedra
     are binned on a uniform grid by their bounding boxes; each point is tested against its
-    bin's tetrahedra only and takes the one where its smallest weight is largest (>= -tol:
-    on a shared face either neighbour gives the same P1 value; solution.vtu's coordinates
-    are single precision, so a boundary node may sit 1e-7 outside)."""
+    bin's tetrahedra only (bins padded by `tol` of the mesh's size) and takes the one where
+    its smallest weight is largest (on a shared face either neighbour gives the same P1
+    value); a node outside every tetrahedron by up to OUTSIDE takes the nearest one's P1
+    extension (single-precision coordinates, or a curved boundary). `outside=None`: a point
+    in no tetrahedron (beyond `tol`) gets node -1 and zero weights instead of an error (a
+    picture's samples of a plane through the body)."""
     points, tets = coarse.points, coarse.tetrahedra
     corners = points[tets]                                            # (M, 4, 3)
     to_weights = np.linalg.inv(np.swapaxes(corners[:, 1:] - corners[:, :1], 1, 2))  # x - a -> (w1, w2, w3)
@@ -179,9 +216,11 @@ def tetrahedron_weights(coarse: Fields, at: np.ndarray, tol: float = 1e-5) -> tu
         w = np.einsum("cij,pcj->pci", to_weights[candidates], at[rows][:, None, :] - corners[candidates, 0][None])
         full = np.concatenate([1.0 - w.sum(axis=-1, keepdims=True), w], axis=-1)   # (P, C, 4)
         best = full.min(axis=-1).argmax(axis=1)
-        inside = full[np.arange(len(rows)), best].min(axis=-1) >= -tol
+        inside = full[np.arange(len(rows)), best].min(axis=-1) >= -(tol if outside is None else outside)
         found[rows[inside]] = candidates[best[inside]]
         weights[rows[inside]] = full[np.arange(len(rows)), best][inside]
+    if outside is None:
+        return np.where(found[:, None] >= 0, tets[found], -1), weights
     if np.any(found < 0):
         raise FieldsError(f"{coarse.source}: some fine nodes lie outside the coarse mesh")
     return tets[found], weights
@@ -191,9 +230,8 @@ def error_norms(coarse: Fields, fine: Fields, names: list[str]) -> dict[str, flo
     """||fine - coarse|| per field in its norm of E^h (norm_table.MEASURE), on the fine mesh."""
     if coarse.tetrahedra is not None:
         try:  # a Kuhn mesh of a box (harness/box_mesh.py): its grid locates every point at once
-            grid, spacing = kuhn_grid(coarse)
-            nodes, w = kuhn_weights(coarse.points, grid, spacing, fine.points)
-        except MeshError:  # an unstructured one: the nodal interpolant, as on non-nested triangles
+            nodes, w = kuhn_located(coarse, fine.points)
+        except MeshError:  # any other (gmsh's): point location, exact on nested meshes as on 2D
             nodes, w = tetrahedron_weights(coarse, fine.points)
         return {name: simplex_seminorm(fine.points, fine.cells,
                                        fine.field(name) - np.einsum("nk,nk...->n...", w, coarse.field(name)[nodes]),

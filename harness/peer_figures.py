@@ -1,7 +1,8 @@
 """The paper's figures (Ouafik 2019, Figs. 2-3) from both codes side by side: the deformed
 mesh with the initial boundary, the von Mises stress in the deformed configuration, the
 electric potential and the temperature; FreeFEM, GetFEM and their difference. In 3D the same
-on the mid-plane y = Ly/2 (nodes of a Kuhn mesh lie on every grid plane).
+on the mid-plane y = const (harness/slices.py: a Kuhn mesh's grid plane, or samples of any
+other tetrahedral mesh).
 
 The stress is computed here, per cell, from each code's nodal fields with the same law,
 sigma = C eps(u) + e^T grad(phi) - theta m (docs/model.md section 2; in 2D the plane-strain
@@ -22,6 +23,7 @@ from matplotlib.tri import Triangulation  # noqa: E402
 
 from harness.crosscheck import matched  # noqa: E402
 from harness.fields import Fields  # noqa: E402
+from harness.slices import Section, plane, whole  # noqa: E402
 
 # 2D axes x, y are the material's 1 and 3 (docs/model.md section 2).
 AXES_2D = (0, 2)
@@ -66,16 +68,13 @@ def von_mises(points: np.ndarray, cells: np.ndarray, fields: dict[str, np.ndarra
     return np.sqrt(0.5 * ((s11 - s22) ** 2 + (s22 - s33) ** 2 + (s33 - s11) ** 2) + 3 * (s23**2 + s13**2 + s12**2))
 
 
-def section(fields: Fields) -> tuple[np.ndarray, np.ndarray, np.ndarray, tuple[int, int]]:
-    """(nodes, their in-plane coordinates, triangles) of what is drawn: the whole 2D mesh,
-    or the mid-plane y = Ly/2 of a box; and the two drawn axes."""
-    pts = fields.points
+def section(fields: Fields) -> tuple[Section, tuple[int, int]]:
+    """What is drawn: the whole 2D mesh, or the mid-plane y = const of a 3D body
+    (harness/slices.py); and the two drawn axes."""
     if fields.tetrahedra is None:
-        return np.arange(len(pts)), pts[:, :2], fields.triangles, (0, 1)
-    mid = pts[:, 1].max() / 2
-    nodes = np.flatnonzero(np.abs(pts[:, 1] - mid) < 1e-6)
-    xy = pts[nodes][:, [0, 2]]
-    return nodes, xy, Triangulation(xy[:, 0], xy[:, 1]).triangles, (0, 2)
+        return whole(fields), (0, 1)
+    pts = fields.points
+    return plane(fields, 1, (pts[:, 1].min() + pts[:, 1].max()) / 2), (0, 2)
 
 
 def nodal_from_cells(n_nodes: int, cells: np.ndarray, values: np.ndarray) -> np.ndarray:
@@ -92,26 +91,27 @@ def render(fields: Fields, peer: dict[str, Any], material: dict[str, Any], names
             for name in names}
     theirs = peer_fields(fields, peer, names)
     pts = fields.points[:, : fields.cells.shape[1] - 1]
-    nodes, xy, tris, (a, b) = section(fields)
+    cut, (a, b) = section(fields)
+    xy, tris = cut.coords, cut.triangles
     codes = {"FreeFEM": ours, "GetFEM": theirs}
-    stress = {code: nodal_from_cells(len(pts), fields.cells, von_mises(pts, fields.cells, f, material))[nodes]
+    stress = {code: cut.of(nodal_from_cells(len(pts), fields.cells, von_mises(pts, fields.cells, f, material)))
               for code, f in codes.items()}
     umax = max(float(np.abs(ours["u"]).max()), 1e-300)
     scale = 0.1 * float(np.ptp(xy[:, 1])) / umax  # the largest displacement drawn as 1/10 of the height
     rows = [("von Mises stress [Pa]", stress)]
-    rows += [(f"{name} [{'V' if name == 'phi' else 'K'}]", {c: f[name][nodes] for c, f in codes.items()})
+    rows += [(f"{name} [{'V' if name == 'phi' else 'K'}]", {c: cut.of(f[name]) for c, f in codes.items()})
              for name in ("phi", "theta") if name in names]
     fig, axes = plt.subplots(1 + len(rows), 3, figsize=(15, 2.3 * (1 + len(rows)) + 0.6), constrained_layout=True)
     boundary = outline(xy, tris)
     for col, (code, f) in enumerate(codes.items()):
-        u = f["u"][nodes]
+        u = cut.of(f["u"])
         moved = Triangulation(xy[:, 0] + scale * u[:, a], xy[:, 1] + scale * u[:, b], tris)
         ax = axes[0, col]
         ax.triplot(moved, lw=0.2, color="tab:blue")
         for seg in boundary:
             ax.plot(xy[seg, 0], xy[seg, 1], color="k", lw=0.8)
         ax.set(title=f"{code}: deformed mesh, u x {scale:.3g}", aspect="equal")
-    du = ours["u"][nodes] - theirs["u"][nodes]
+    du = cut.of(ours["u"]) - cut.of(theirs["u"])
     c = axes[0, 2].tripcolor(Triangulation(xy[:, 0], xy[:, 1], tris), np.linalg.norm(du, axis=1), shading="gouraud", cmap="magma")
     fig.colorbar(c, ax=axes[0, 2], label="|u_FreeFEM - u_GetFEM| [m]")
     axes[0, 2].set(title=f"difference (max |u| {umax:.3g} m)", aspect="equal")

@@ -78,7 +78,7 @@ def check_guards(plan: Plan) -> None:
         if not plan.ignore_memory:
             check_memory(scene.geometry.width, scene.geometry.height, levels, scene.effects, scene.element,
                          depth=geometry_depth(scene.geometry), factorises=scene.factorises,
-                         multigrid=scene.multigrid_levels > 0)
+                         multigrid=scene.multigrid_levels > 0, nodes_at=getattr(scene.geometry, "nodes_at", None))
         mesh_bytes += sum(mesh_file_bytes(scene.geometry, n) for n in levels)
     # The meshes are the one part of a study's output whose size is known before it runs: a
     # disk that cannot hold them cannot hold the study (each mesh is checked again when made).

@@ -13,6 +13,7 @@ from typing import Any, Iterable
 from harness.errors import SceneError
 from harness.petsc_plugin import default_options, factorising, multigrid
 from harness.box import Box, parse_box
+from harness.gmsh_geometry import GmshGeometry, check_poling, parse_gmsh
 from harness.schema import EFFECTS, REQUIRED, SCHEMA, SOLVER_SECTIONS, Key, effect_of, geometry_keys
 from harness.sections import sections_of
 from harness.segments import Geometry, parse_geometry
@@ -28,7 +29,7 @@ class Scene:
 
     source: Path
     table: dict[str, dict[str, Any]]
-    geometry: Geometry | Box
+    geometry: Geometry | Box | GmshGeometry
     warnings: tuple[str, ...] = ()
     sections: Any = None
 
@@ -166,14 +167,25 @@ def load_scene(path: Path, overrides: Iterable[str] = ()) -> Scene:
         for item in overrides:
             apply_override(raw, item)
         table, warnings = resolve(raw)
-        kind = table["geometry"]["kind"]
-        geometry = parse_box(table["geometry"]) if kind == "box" else parse_geometry(table["geometry"])
+        geometry = parse_any_geometry(table, path.parent)
+        check_poling(table["scene"]["poling_axis"], getattr(geometry, "dimension", 2))
         check_expect(table["expect"])
     except SceneError as exc:
         raise SceneError(f"{path}: {exc}") from None  # every case-file error names the file
     sections = sections_of(table)
     table = {name: values for name, values in table.items() if name != "expect"}
     return Scene(source=path, table=table, geometry=geometry, warnings=warnings, sections=sections)
+
+
+def parse_any_geometry(table: dict[str, dict[str, Any]], case_dir: Path) -> Geometry | Box | GmshGeometry:
+    given = table["geometry"]
+    if given["kind"] == "box":
+        return parse_box(given)
+    if given["kind"] == "gmsh":
+        geometry = parse_gmsh(given, case_dir, table["study"]["levels"], table["scene"]["effects"])
+        given["coarsest"] = geometry.coarsest  # resolved, so that the cache key names it
+        return geometry
+    return parse_geometry(given)
 
 
 def parse_value(text: str) -> Any:

@@ -82,6 +82,13 @@ def safe_name(v: str) -> str | None:
     return None if ok else "must be a plain file name (letters, digits, - _ .)"
 
 
+def one_of_ints(*choices: int) -> Check:
+    def check(v: int) -> str | None:
+        return None if v in choices else f"must be one of {', '.join(map(str, choices))}"
+
+    return check
+
+
 _ROLE = one_of(*ROLE_LABELS)
 
 # Effects a scene can switch on (elasticity is always on), each with its prerequisites.
@@ -105,6 +112,7 @@ DATA_EFFECT: dict[tuple[str, str | None], str] = {
     ("thermal_contact", None): "thermal_contact",
     ("loads", "surface_charge"): "piezoelectric",
     ("loads", "charge_density"): "piezoelectric",
+    ("loads", "electrode_potential"): "piezoelectric",
     ("loads", "heat_source"): "thermal",
 }
 
@@ -142,9 +150,12 @@ SCHEMA: dict[str, dict[str, Key]] = {
         "coarsest_guess": Key(str, "zero", one_of("zero", "pressed")),
         "initial_mesh": Key(str, ""),
         "initial_state": Key(str, ""),
+        # The material's axis 3 (poling): blank or the default axis only, y in 2D and z in 3D,
+        # named or as a unit vector (harness/gmsh_geometry.py check_poling).
+        "poling_axis": Key(object, ""),
     },
     "geometry": {
-        "kind": Key(str, check=one_of("rectangle", "box")),
+        "kind": Key(str, check=one_of("rectangle", "box", "gmsh")),
         "width": Key(float, check=positive),
         "height": Key(float, check=positive),
         "bottom": Key(list),
@@ -160,6 +171,8 @@ SCHEMA: dict[str, dict[str, Key]] = {
         for name in (
             "traction_x", "traction_y", "traction_z", "surface_charge", "body_force_x",
             "body_force_y", "body_force_z", "charge_density", "heat_source",
+            # phi on the parts whose role is `electrode` [V] (the `ground` parts hold 0)
+            "electrode_potential",
         )
     },
     "contact": {
@@ -259,9 +272,25 @@ BOX_GEOMETRY: dict[str, Key] = {
 }
 
 
+# The [geometry] of kind = "gmsh" (harness/gmsh_geometry.py): a .geo file whose named
+# physical groups (curves in 2D, surfaces in 3D) the [geometry.roles] table maps to roles.
+GMSH_GEOMETRY: dict[str, Key] = {
+    "kind": Key(str, check=one_of("gmsh")),
+    "file": Key(str),  # relative to the case file
+    "dimension": Key(int, check=one_of_ints(2, 3)),
+    "roles": Key(object),  # physical-group name -> role, checked against the file
+    # split: uniform refinements of the coarsest mesh (nested on straight-sided bodies);
+    # remesh: an independent mesh per level (point-located transfer).
+    "levels": Key(str, "split", one_of("split", "remesh")),
+    # The level whose mesh (h = 1/coarsest) split refines and remesh scales the file's sizes
+    # from; 0: the smallest of study.levels.
+    "coarsest": Key(int, 0, nonnegative),
+}
+
+
 def geometry_keys(given: dict[str, Any]) -> dict[str, Key]:
     """The [geometry] schema of the kind a case file names."""
-    return BOX_GEOMETRY if given.get("kind") == "box" else SCHEMA["geometry"]
+    return {"box": BOX_GEOMETRY, "gmsh": GMSH_GEOMETRY}.get(given.get("kind"), SCHEMA["geometry"])
 
 
 # What a case promises (the stress suite, cases/hard/; harness/studies/stress.py), the way a

@@ -8,7 +8,7 @@ from __future__ import annotations
 import dataclasses
 from typing import Any
 
-from harness.schema import BOX_GEOMETRY, SCHEMA
+from harness.schema import BOX_GEOMETRY, GMSH_GEOMETRY, SCHEMA
 
 
 def section_class(section: str, keys: dict | None = None, name: str | None = None) -> type:
@@ -22,6 +22,7 @@ def section_class(section: str, keys: dict | None = None, name: str | None = Non
 SECTION_CLASSES: dict[str, type] = {section: section_class(section) for section in SCHEMA}
 # The [geometry] of a box scene (harness/box.py) has keys of its own.
 BOX_GEOMETRY_SECTION = section_class("geometry", BOX_GEOMETRY, "BoxGeometrySection")
+GMSH_GEOMETRY_SECTION = section_class("geometry", GMSH_GEOMETRY, "GmshGeometrySection")
 Sections = dataclasses.make_dataclass(
     "Sections", [(section, cls) for section, cls in SECTION_CLASSES.items()], frozen=True)
 
@@ -29,6 +30,7 @@ Sections = dataclasses.make_dataclass(
 def sections_of(table: dict[str, dict[str, Any]]) -> Any:
     """A resolved table (scene.resolve) as a Sections instance."""
     classes = dict(SECTION_CLASSES)
-    if table.get("geometry", {}).get("kind") == "box":
-        classes["geometry"] = BOX_GEOMETRY_SECTION
+    kind = table.get("geometry", {}).get("kind")
+    if kind in ("box", "gmsh"):
+        classes["geometry"] = BOX_GEOMETRY_SECTION if kind == "box" else GMSH_GEOMETRY_SECTION
     return Sections(**{s: cls(**table.get(s, {})) for s, cls in classes.items()})

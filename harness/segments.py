@@ -5,6 +5,8 @@ from __future__ import annotations
 from dataclasses import dataclass
 from typing import Any
 
+import numpy as np
+
 from harness.errors import SceneError
 from harness.schema import ROLE_LABELS
 
@@ -34,6 +36,21 @@ class Geometry:
         """Every x where a bottom or top segment starts or ends, sorted, 0 and width included."""
         xs = {s.x0 for s in self.bottom + self.top} | {s.x1 for s in self.bottom + self.top}
         return tuple(sorted(xs))
+
+    dimension = 2
+
+    def contact_measure(self) -> float:
+        """|Gamma_3|: the length of the contact segments."""
+        return sum(seg.length for seg in self.bottom + self.top if seg.role == "contact")
+
+    def contact_mask(self, points: np.ndarray) -> np.ndarray:
+        """Which points lie on a contact segment of the bottom (y = 0) or the top (y = height)."""
+        on = np.zeros(len(points), dtype=bool)
+        for side, y in ((self.bottom, 0.0), (self.top, self.height)):
+            for seg in (s for s in side if s.role == "contact"):
+                on |= (np.abs(points[:, 1] - y) < 1e-12 * max(1.0, self.height)) & (points[:, 0] >= seg.x0 - 1e-12) \
+                    & (points[:, 0] <= seg.x1 + 1e-12)
+        return on
 
     def role_lengths(self) -> dict[str, float]:
         lengths = dict.fromkeys(ROLE_LABELS, 0.0)

@@ -12,7 +12,7 @@ import numpy as np
 import pytest
 
 from harness import hard_cases as stress
-from harness.checks import CHECK_FLAGS, contact_nodes, physical_checks
+from harness.checks import CHECK_FLAGS, contact_nodes, contact_normal, physical_checks
 from harness.contract import Failure
 from harness.errors import RunError
 from harness.record import RunRecord, read_run_json
@@ -89,10 +89,10 @@ def test_case_converges_with_its_checks_or_fails_as_known(suite, case):
 
 
 def gamma3(result: stress.CaseResult):
-    """Fields on Gamma_3 at the finest level run: x, penetration s, phi (or None)."""
+    """Fields on Gamma_3 at the finest level run: x, penetration s = u . nu - g, phi (or None)."""
     fields = read_fields(result.last.directory / "solution.vtu")
     nodes = np.concatenate(contact_nodes(result.scene, fields))
-    s = -fields.field("u")[nodes, 1] - result.scene.sections.contact.gap
+    s = fields.field("u")[nodes] @ contact_normal(result.scene, fields) - result.scene.sections.contact.gap
     phi = fields.field("phi")[nodes] if "phi" in fields.values else None
     return fields.points[nodes, 0], s, phi
 

@@ -38,6 +38,7 @@ from harness.layout import REPO, Layout
 from harness.norm_table import FIELD_NAMES, error_column
 from harness.pipeline import Guarded, Plan, run_pipeline
 from harness.scene import load_scene
+from harness.segments import Geometry
 
 DEFAULT_RESULTS = REPO / "results" / "cost"
 
@@ -54,8 +55,9 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
     add_levels(parser)
     parser.add_argument("--reference", type=reference_spec, default=None,
                         help="ELEMENT:N of the reference (default P2 at the finest level)")
-    parser.add_argument("--discretisations", type=name_list, default=list(DISCRETISATIONS),
-                        help=f"comma-separated, of {', '.join(DISCRETISATIONS)}")
+    parser.add_argument("--discretisations", type=name_list, default=None,
+                        help=f"comma-separated, of {', '.join(DISCRETISATIONS)} (default: all a scene has; "
+                             "P1-graded grades a rectangle's mesh only)")
     parser.add_argument("--scaling-levels", type=level_list, default=(128, 256),
                         help="levels the P1 chain goes on to, for time and memory against dofs")
     add_common(parser, results=DEFAULT_RESULTS)
@@ -65,9 +67,17 @@ def run(args: argparse.Namespace) -> int:
     base = load_scene(args.case, args.overrides)
     levels = tuple(sorted(set(args.levels or base.levels)))
     reference = args.reference or ("P2", max(levels))
+    # Grading moves a rectangle's lattice towards the ends of its contact segments
+    # (mesh.graded_msh); a box or a gmsh scene has no such lattice.
+    rectangle = isinstance(base.geometry, Geometry)
+    if args.discretisations is None:
+        args.discretisations = [d for d in DISCRETISATIONS if rectangle or DISCRETISATIONS[d].grading == 1.0]
     unknown = [d for d in args.discretisations if d not in DISCRETISATIONS]
     if unknown:
         raise SceneError(f"unknown discretisation {unknown[0]!r} (have {', '.join(DISCRETISATIONS)})")
+    graded = [d for d in args.discretisations if DISCRETISATIONS[d].grading != 1.0]
+    if graded and not rectangle:
+        raise SceneError(f"discretisation {graded[0]!r} grades a rectangle's mesh; {args.case} is not a rectangle")
     scaling = tuple(sorted(set(args.scaling_levels)))
     runs = Layout(results=args.results / "runs")
     planned = planned_scenes(args.case, levels, args.discretisations, reference, scaling, args.overrides)

@@ -1,0 +1,244 @@
+"""A scene drawn in gmsh (`[geometry] kind = "gmsh"`): a .geo file whose boundary parts are
+named physical groups (curves in 2D, surfaces in 3D), each mapped to a role of
+harness/contract.py ROLE_LABELS by the case file's [geometry.roles] table.
+
+The file is read once when the scene loads, so every mistake in it (a missing file, a gmsh
+syntax error, a name without a role, a role naming no group, a body gmsh meshes in the other
+dimension, nothing clamped) ends the command before anything runs. The contact part is kept
+as the facets of a mesh of its own curves or surfaces: straight or flat pieces, so any
+level's Gamma_3 nodes are found by lying on them (checks.py), whatever the body's shape.
+"""
+
+from __future__ import annotations
+
+import itertools
+import math
+from dataclasses import dataclass
+from pathlib import Path
+from typing import Any
+
+import gmsh
+import numpy as np
+
+from harness.contract import ROLE_LABELS
+from harness.errors import SceneError
+from harness.gmsh_api import session
+
+LEVEL_KINDS = ("split", "remesh")
+# Rollers along every axis hold the body like a clamp (docs/geometry.md says when they do).
+ROLLERS = ("roller_x", "roller_y", "roller_z")
+
+
+@dataclass(frozen=True)
+class GmshGeometry:
+    file: Path                      # absolute
+    dimension: int
+    roles: tuple[tuple[str, str], ...]  # (physical name, role), in the case file's order
+    levels: str                     # split: refinements of the coarsest mesh; remesh: a mesh per h
+    coarsest: int                   # the level n whose mesh (h = 1/n) split refines
+    bounds: tuple[float, ...]       # gmsh's bounding box: xmin, ymin, zmin, xmax, ymax, zmax
+    contact: tuple[tuple[tuple[float, ...], ...], ...] = ()  # Gamma_3's facets (d points of d coordinates)
+    # The coarsest mesh's vertices, edges, (3D: faces,) cells: the guards' node counts.
+    coarsest_counts: tuple[int, ...] = ()
+    diagonals: str = "gmsh"         # read by code that asks a rectangle how it was cut
+
+    @property
+    def role_of_name(self) -> dict[str, str]:
+        return dict(self.roles)
+
+    def nodes_at(self, n: int) -> int:
+        """Nodes of level n for the memory and disk guards (harness/guards.py): exact for a
+        split level n = coarsest 2^k (each split adds a node on every edge: V' = V + E; in 2D
+        E' = 2E + 3T, T' = 4T; in 3D E' = 2E + 3F + T, F' = 4F + 8T, T' = 8T), and that
+        count scaled by the remaining (n / (coarsest 2^k))^d between powers of 2 (remesh)."""
+        counts = list(self.coarsest_counts)
+        level = self.coarsest
+        while 2 * level <= n:
+            if self.dimension == 2:
+                v, e, t = counts
+                counts = [v + e, 2 * e + 3 * t, 4 * t]
+            else:
+                v, e, f, t = counts
+                counts = [v + e, 2 * e + 3 * f + t, 4 * f + 8 * t, 8 * t]
+            level *= 2
+        return math.ceil(counts[0] * (n / level) ** self.dimension)
+
+    # The bounding box: what a study that asks for a scene's extent gets.
+    @property
+    def width(self) -> float:
+        return self.bounds[3] - self.bounds[0]
+
+    @property
+    def height(self) -> float:
+        axis = 2 if self.dimension == 3 else 1
+        return self.bounds[3 + axis] - self.bounds[axis]
+
+    @property
+    def ly(self) -> float:
+        return self.bounds[4] - self.bounds[1]
+
+    def contact_measure(self) -> float:
+        """|Gamma_3|: a length in 2D, an area in 3D."""
+        return float(sum(facet_measure(np.array(f)) for f in self.contact))
+
+    def contact_mask(self, points: np.ndarray) -> np.ndarray:
+        """Which points lie on Gamma_3 (within 1e-6 of the body's size: solution.vtu holds
+        single-precision coordinates)."""
+        tol = 1e-6 * max(self.width, self.height, 1e-300)
+        on = np.zeros(len(points), dtype=bool)
+        for facet in self.contact:
+            on |= distance_to_facet(points[:, :self.dimension], np.array(facet), tol) <= tol
+        return on
+
+
+def facet_measure(corners: np.ndarray) -> float:
+    edges = corners[1:] - corners[0]
+    if len(corners) == 2:
+        return float(np.linalg.norm(edges[0]))
+    return 0.5 * float(np.linalg.norm(np.cross(edges[0], edges[1])))
+
+
+def distance_to_facet(points: np.ndarray, corners: np.ndarray, tol: float) -> np.ndarray:
+    """Distance of each point to a segment (2D) or a triangle (3D): to the nearest point of
+    a segment; to a triangle's plane for a point whose projection falls inside the triangle
+    widened by `tol` (a node on an edge shared by two facets belongs to both), infinite
+    otherwise."""
+    a = corners[0]
+    edges = corners[1:] - a                      # (k, d)
+    gram = edges @ edges.T
+    t = np.linalg.solve(gram, edges @ (points - a).T).T  # (N, k): least-squares coordinates
+    if len(edges) == 1:
+        t = np.clip(t, 0.0, 1.0)
+    else:
+        slack = tol / math.sqrt(2.0 * facet_measure(corners))  # tol in barycentric units
+        outside = (t < -slack).any(axis=1) | (t.sum(axis=1) > 1 + slack)
+        t[outside] = np.nan  # off the triangle's plane region: not on this facet
+    nearest = a + t @ edges
+    d = np.linalg.norm(points - nearest, axis=1)
+    return np.where(np.isnan(d), np.inf, d)
+
+
+def parse_gmsh(table: dict[str, Any], case_dir: Path, levels: list[int], effects: list[str]) -> GmshGeometry:
+    """Read and check the scene's .geo; `levels` (the study's) gives the default coarsest."""
+    dimension = table["dimension"]
+    file = (case_dir / table["file"]).resolve()
+    if not file.is_file():
+        raise SceneError(f"geometry.file: no such file {file}")
+    roles = table["roles"]
+    if not isinstance(roles, dict) or not roles:
+        raise SceneError("geometry.roles must be a table of physical-group name = role")
+    for name, role in roles.items():
+        if role not in ROLE_LABELS:
+            raise SceneError(f"geometry.roles.{name} = {role!r}: role must be one of {', '.join(ROLE_LABELS)}")
+    used = set(roles.values())
+    # What holds the body: a clamp, rollers along every axis, or the penalised foundation with
+    # friction (its normal and tangential penalties, once pressed: tests/data/block.toml).
+    held = "clamped" in used or set(ROLLERS[:dimension]) <= used or (
+        "contact" in used and {"contact", "friction"} <= set(effects))
+    if not held:
+        raise SceneError("geometry.roles: no part is clamped (nor rollers along every axis, nor a contact part "
+                         "with friction): the body could move as a rigid body")
+    if "contact" in effects and "contact" not in used:
+        raise SceneError("geometry.roles: the contact part is empty (no name maps to role contact) but effect "
+                         "'contact' is on")
+    coarsest = table["coarsest"] or min(levels)
+    found, bounds, contact, counts = read_geo(file, dimension, coarsest, [n for n, r in roles.items() if r == "contact"])
+    facet = "curve" if dimension == 2 else "surface"
+    for name in found:
+        if name not in roles:
+            raise SceneError(f"{file.name}: physical {facet} {name!r} has no role in [geometry.roles]")
+    for name in roles:
+        if name not in found:
+            raise SceneError(f"geometry.roles.{name}: {file.name} has no physical {facet} named {name!r} "
+                             "(or it holds no entity)")
+    if "contact" in used and not contact:
+        raise SceneError(f"{file.name}: the contact part is empty (no {facet} in it)")
+    return GmshGeometry(file=file, dimension=dimension, roles=tuple(roles.items()), levels=table["levels"],
+                        coarsest=coarsest, bounds=bounds, contact=contact, coarsest_counts=counts)
+
+
+def read_geo(file: Path, dimension: int, coarsest: int, contact_names: list[str]) -> tuple[
+        dict[str, list[int]], tuple[float, ...], tuple[tuple[tuple[float, ...], ...], ...], tuple[int, ...]]:
+    """The names of the file's physical groups of dimension d - 1 (with their entities),
+    its bounding box, the contact entities' facets and the coarsest level's mesh's counts
+    of vertices, edges, (faces,) cells (h = 1/coarsest)."""
+    with session():
+        try:
+            gmsh.open(str(file))
+        except Exception as exc:  # gmsh raises a bare Exception carrying its log line
+            raise SceneError(f"gmsh cannot read {file.name}: {exc}") from None
+        drawn = gmsh.model.getDimension()
+        if drawn != dimension:
+            raise SceneError(f"{file.name} draws a {drawn}D body but geometry.dimension = {dimension}")
+        if dimension == 2:
+            box = gmsh.model.getBoundingBox(-1, -1)
+            # OpenCASCADE pads its bounding boxes by ~1e-7: a body in z = 0 is within that.
+            if max(abs(box[2]), abs(box[5])) > 1e-6 * max(box[3] - box[0], box[4] - box[1]):
+                raise SceneError(f"{file.name}: a 2D body must lie in the plane z = 0")
+        found: dict[str, list[int]] = {}
+        for dim, tag in gmsh.model.getPhysicalGroups(dimension - 1):
+            entities = [int(e) for e in gmsh.model.getEntitiesForPhysicalGroup(dim, tag)]
+            name = gmsh.model.getPhysicalName(dim, tag) or str(tag)
+            if entities:
+                found.setdefault(name, []).extend(entities)
+        bounds = tuple(float(b) for b in gmsh.model.getBoundingBox(-1, -1))
+        entities = [e for name in contact_names for e in found.get(name, [])]
+        gmsh.option.setNumber("Mesh.MeshSizeMax", 1.0 / coarsest)
+        try:
+            gmsh.model.mesh.generate(dimension)
+        except Exception as exc:
+            raise SceneError(f"gmsh cannot mesh {file.name} at h = 1/{coarsest}: {exc}") from None
+        counts = simplex_counts(dimension)
+        contact = contact_facets(dimension, entities) if entities else ()
+    return found, bounds, contact, counts
+
+
+def simplex_counts(dimension: int) -> tuple[int, ...]:
+    """Vertices, edges, (faces,) cells of gmsh's current mesh of the body."""
+    cells = []
+    for _, entity in gmsh.model.getEntities(dimension):
+        for kind, _, nodes in zip(*gmsh.model.mesh.getElements(dimension, entity)):
+            per = gmsh.model.mesh.getElementProperties(int(kind))[3]
+            cells.append(np.asarray(nodes, dtype=np.int64).reshape(-1, per)[:, :dimension + 1])
+    if not cells:
+        raise SceneError(f"gmsh made no {dimension}D elements")
+    cells = np.vstack(cells)
+    counts = [len(np.unique(cells))]
+    for k in range(2, dimension + 1):  # edges, then (3D) faces
+        pieces = np.vstack([cells[:, list(c)] for c in itertools.combinations(range(dimension + 1), k)])
+        counts.append(len(np.unique(np.sort(pieces, axis=1), axis=0)))
+    return tuple(counts + [len(cells)])
+
+
+def contact_facets(dimension: int, entities: list[int]) -> tuple[tuple[tuple[float, ...], ...], ...]:
+    """The facets of the meshed contact entities: straight segments or flat triangles that
+    cover them exactly when they are straight or flat (checked per level by
+    harness/gmsh_mesh.py)."""
+    tags, coords, _ = gmsh.model.mesh.getNodes()
+    where = dict(zip((int(t) for t in tags), coords.reshape(-1, 3)[:, :dimension]))
+    out = []
+    for entity in entities:
+        for kind, _, nodes in zip(*gmsh.model.mesh.getElements(dimension - 1, entity)):
+            per = gmsh.model.mesh.getElementProperties(int(kind))[3]
+            for cell in np.asarray(nodes, dtype=int).reshape(-1, per)[:, :dimension]:
+                out.append(tuple(tuple(float(x) for x in where[int(t)]) for t in cell))
+    return tuple(out)
+
+
+def check_poling(value: Any, dimension: int) -> None:
+    """The poling axis (the material's axis 3) a scene may name: the default one only (y in
+    2D, z in 3D), as a named axis or a unit vector. A rotated poling would need the material
+    tensors rotated in freefem/constitutive.idp; until then it is refused, and a user rotates
+    the drawing instead."""
+    default = "y" if dimension == 2 else "z"
+    vector = [0.0] * dimension
+    vector[dimension - 1] = 1.0
+    if value in ("", default):
+        return
+    if isinstance(value, list) and len(value) == dimension and all(
+            isinstance(x, (int, float)) and not isinstance(x, bool) for x in value):
+        norm = math.sqrt(sum(x * x for x in value))
+        if norm > 0 and all(abs(x / norm - v) <= 1e-12 for x, v in zip(value, vector)):
+            return
+    raise SceneError(f"scene.poling_axis = {value!r}: only the default axis is supported ({default!r} or "
+                     f"{vector} in {dimension}D); rotate the geometry so that the poling runs along {default}")
