@@ -21,11 +21,13 @@ STALLED = 5  # steps in a row that pass no trial: no progress
 
 @dataclass
 class Unknowns:
-    """The model's variables and, per field, its dof range and constrained dofs."""
+    """The model's variables and, per field, its dof range and constrained dofs; `given`, per
+    field, the constrained dofs whose value is not 0 and that value (scaled): an electrode's."""
 
     md: object
     fields: list[str]
     dirichlet: dict[str, np.ndarray]
+    given: dict[str, tuple[np.ndarray, float]] = field(default_factory=dict)
 
     def ranges(self) -> dict[str, np.ndarray]:
         out = {}
@@ -39,6 +41,14 @@ class Unknowns:
         for name, r in self.ranges().items():
             mask[r[self.dirichlet[name]]] = False
         return np.flatnonzero(mask)
+
+    def impose(self, x: np.ndarray) -> None:
+        """x with the Dirichlet values at the constrained dofs (Newton's increments keep them)."""
+        for name, r in self.ranges().items():
+            x[r[self.dirichlet[name]]] = 0.0
+            if name in self.given:
+                dofs, value = self.given[name]
+                x[r[dofs]] = value
 
     def get(self) -> np.ndarray:
         return np.concatenate([np.asarray(self.md.variable(n), dtype=float) for n in self.fields])
@@ -92,8 +102,7 @@ def newton(md, unknowns: Unknowns, start: dict[str, np.ndarray] | None, settings
     result = NewtonResult(increments={f: [] for f in unknowns.fields})
     ranges, free = unknowns.ranges(), unknowns.free()
     x = np.zeros(md.nbdof()) if start is None else place(start, ranges, md.nbdof())
-    constrained = np.setdiff1d(np.arange(md.nbdof()), free)
-    x[constrained] = 0.0
+    unknowns.impose(x)
     unknowns.set(x)
     state, stalled, history, full = contact_state(), 0, [], []
     seen = [state.tobytes()]
@@ -133,7 +142,7 @@ def newton(md, unknowns: Unknowns, start: dict[str, np.ndarray] | None, settings
             restartable = False
             result.restarted_at = it
             x = place(pressed(), ranges, md.nbdof())
-            x[constrained] = 0.0
+            unknowns.impose(x)
             unknowns.set(x)
             state, stalled, history, full = contact_state(), 0, [], []
             seen = [state.tobytes()]

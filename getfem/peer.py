@@ -79,7 +79,7 @@ def problem_of(spec: dict) -> Problem:
     data["electric_contact"]["L"] = 1e300 if bound is None or math.isinf(float(bound)) else float(bound)
     return Problem(dimension, frozenset(spec["effects"]), reduced(spec["material"], dimension), data,
                    scales(spec["material"], data["electric_contact"].get("phi_f", 0.0),
-                          data["thermal_contact"].get("theta_f", 0.0)))
+                          data["thermal_contact"].get("theta_f", 0.0), data["loads"].get("electrode_potential", 0.0)))
 
 
 def solve(spec: dict) -> dict:
@@ -102,7 +102,8 @@ def solve(spec: dict) -> dict:
         md.add_macro(name, expr)
     for role, expr in terms(p):
         md.add_nonlinear_term(mim, expr, -1 if role == "bulk" else labels[role])
-    unknowns = Unknowns(md, fields, dirichlet_dofs(mfu, mfs, fields, labels, p.dimension))
+    unknowns = Unknowns(md, fields, dirichlet_dofs(mfu, mfs, fields, labels, p.dimension),
+                        electrode(mfs, fields, labels, p))
     setup = time.perf_counter() - clock
     start = spec["start"]
     if start not in ("zero", "pressed", "given"):
@@ -129,10 +130,18 @@ def dirichlet_dofs(mfu, mfs, fields: list[str], labels: dict[str, int], dimensio
         u.append(dofs[dofs % dimension == axis])  # u's dofs are interleaved by component
     out = {"u": np.unique(np.concatenate(u))}
     if "phi" in fields:
-        out["phi"] = on(mfs, ["clamped"])
+        out["phi"] = on(mfs, ["clamped", "ground", "electrode"])
     if "theta" in fields:
-        out["theta"] = on(mfs, ["clamped", "loaded", "free"])
+        out["theta"] = on(mfs, ["clamped", "loaded", "free", "ground", "electrode"])
     return out
+
+
+def electrode(mfs, fields: list[str], labels: dict[str, int], p: Problem) -> dict[str, tuple[np.ndarray, float]]:  # noqa: ANN001
+    """phi's dofs on the electrode part and their scaled value V/Phi (docs/model.md section 1)."""
+    if "phi" not in fields or "electrode" not in labels:
+        return {}
+    dofs = np.asarray(mfs.basic_dof_on_region(labels["electrode"]), dtype=int)
+    return {"phi": (dofs, p.data["loads"].get("electrode_potential", 0.0) / p.scales.Phi)}
 
 
 def pressed_state(md, mim, mfu, mfs, fields: list[str], labels: dict[str, int], p: Problem,  # noqa: ANN001
@@ -149,7 +158,7 @@ def pressed_state(md, mim, mfu, mfs, fields: list[str], labels: dict[str, int], 
     if "phi" in fields:
         state["phi"] = p.data["electric_contact"].get("phi_f", 0.0) / p.scales.Phi * w_mech
     if "theta" in fields:
-        zero = [labels[r] for r in ("clamped", "loaded", "free") if r in labels]
+        zero = [labels[r] for r in ("clamped", "loaded", "free", "ground", "electrode") if r in labels]
         state["theta"] = 5.0 / p.scales.Theta * harmonic(mim, mfs, contact, zero)
     return state
 

@@ -2,8 +2,9 @@
 dimensionless unknowns.
 
 Unknowns u^ = u/U, phi^ = phi/Phi, theta^ = theta/Theta; each equation divided by its size
-(Su, Sphi, Stheta). The scales are the model's (docs/model.md section 4): Phi and Theta the
-foundation's potential and temperature (at least 1), U = Phi sqrt(beta11/C11), so the blocks
+(Su, Sphi, Stheta). The scales are the model's (docs/model.md section 4): Phi the largest imposed
+potential (the foundation's or an electrode's) and Theta the foundation's temperature (each at
+least 1), U = Phi sqrt(beta11/C11), so the blocks
 of the tangent are O(1) instead of spanning 1e20. GetFEM differentiates each term
 automatically: the tangent is exact, with pos_part's derivative Heaviside(0) = 1 (a point
 exactly at the gap counts as closed, as the model's tangent takes it).
@@ -37,9 +38,9 @@ class Scales:
     Stheta: float
 
 
-def scales(material: dict, phi_f: float, theta_f: float) -> Scales:
+def scales(material: dict, phi_f: float, theta_f: float, electrode_v: float = 0.0) -> Scales:
     c0, b0, k0 = material["C"][0][0], material["beta"][0][0], material["k"][0][0]
-    phi, theta = max(abs(phi_f), 1.0), max(abs(theta_f), 1.0)
+    phi, theta = max(abs(phi_f), abs(electrode_v), 1.0), max(abs(theta_f), 1.0)
     u = phi * np.sqrt(b0 / c0)
     return Scales(u, phi, theta, c0 * u, b0 * phi, k0 * theta)
 

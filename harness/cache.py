@@ -9,6 +9,7 @@ output still has the checksum it was written with."""
 
 from __future__ import annotations
 
+import functools
 import hashlib
 import importlib.util
 import json
@@ -41,6 +42,18 @@ def sha256_file(path: Path) -> str:
     return digest.hexdigest()
 
 
+@functools.lru_cache(maxsize=1024)
+def _source_sha256(path: str, mtime_ns: int, size: int) -> str:
+    return sha256_file(Path(path))
+
+
+def source_sha256(path: Path) -> str:
+    """sha256_file of a source file, hashed once per process while it is unchanged (same
+    modification time and size): every level of a study keys the same ~50 files."""
+    stat = path.stat()
+    return _source_sha256(str(path), stat.st_mtime_ns, stat.st_size)
+
+
 def source_digests(freefem_dir: Path, material: Path | None = None) -> dict[str, str]:
     """Every .idp/.edp under freefem/ by relative path, except the materials: of those only
     `material`, the one the scene uses (adding or editing another invalidates nothing)."""
@@ -49,7 +62,7 @@ def source_digests(freefem_dir: Path, material: Path | None = None) -> dict[str,
                    if p.suffix in (".idp", ".edp") and p.is_file() and materials not in p.parents)
     if material is not None:
         files.append(material)
-    return {str(p.relative_to(freefem_dir)): sha256_file(p) for p in files}
+    return {str(p.relative_to(freefem_dir)): source_sha256(p) for p in files}
 
 
 def code_digests(modules: tuple[str, ...] = INPUT_WRITERS) -> dict[str, str]:
@@ -58,7 +71,7 @@ def code_digests(modules: tuple[str, ...] = INPUT_WRITERS) -> dict[str, str]:
     for name in modules:
         spec = importlib.util.find_spec(name)
         if spec is not None and spec.origin and Path(spec.origin).is_file():
-            out[name] = sha256_file(Path(spec.origin))
+            out[name] = source_sha256(Path(spec.origin))
     return out
 
 

@@ -120,15 +120,19 @@ def physical_checks(record: RunRecord, scene: Scene) -> dict[str, Any]:
     natural = {name: c.get(f"natural_{name}_flux", 0.0) for name in ("heat", "charge")}
     flows = {"heat": (record.heat_in_contact or 0.0, c.get("heat_source", 0.0), c.get("heat_out_dirichlet", 0.0)),
              "charge": (record.charge_in_contact or 0.0, c.get("charge_source", 0.0), c.get("charge_out_dirichlet", 0.0))}
+    # A driven electrode's charge leaves through the ground and the clamps: the net charge out
+    # of the Dirichlet parts is then ~0 and the electrode's own charge is the flow's size.
+    electrode = {"heat": 0.0, "charge": abs(c.get("electrode_charge", 0.0))}
+    driven_electrode = {"heat": False, "charge": scene.sections.loads.electrode_potential != 0}
     for name, (into, source, leaving) in flows.items():
         # FreeFEM's {name}_imbalance, with a floor for a contact that carries nothing.
-        scale = max(abs(into), abs(source), abs(leaving), FLOOR * natural[name] * length, NOTHING_FLOWS)
+        scale = max(abs(into), abs(source), abs(leaving), electrode[name], FLOOR * natural[name] * length, NOTHING_FLOWS)
         out[f"{name}_imbalance"] = abs(into + source - leaving) / scale
         # Nothing drives this flow (no conductance drive, no source: `block`'s phi_f = theta_f = 0,
         # `heated`'s charge, `heat` without a contact part): the exact flow is zero and every term
         # round-off of the bulk flux, whose size run.json does not give; the balance then has
         # nothing to compare with.
-        out[f"{name}_driven"] = natural[name] * length > 0 or abs(source) > 0
+        out[f"{name}_driven"] = natural[name] * length > 0 or abs(source) > 0 or driven_electrode[name]
     open_ok = True
     for name in ("heat", "charge"):
         found = c.get(f"max_{name}_flux_open", math.nan)

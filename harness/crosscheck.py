@@ -12,8 +12,10 @@ import numpy as np
 
 from harness.errors import FieldsError
 from harness.fields import Fields
+from harness.norm_table import measure_of
 from harness.norms import simplex_seminorm
 from harness.record import RunRecord
+from harness.unknowns import FIELDS
 
 # Above this relative difference the two codes disagree (issue 21): both solve the same
 # discrete equations to Newton's tolerance 1e-9 per field, so what remains is round-off.
@@ -49,7 +51,8 @@ def matched(reference: np.ndarray, points: np.ndarray) -> np.ndarray:
 # against this fraction of its scale (run.json "scales": U, Phi, Theta) instead of its own
 # size, which is round-off (1e-300) and would turn equal noise into a huge ratio.
 ZERO_FIELD = 1e-14
-SCALE_OF = {"u": "U", "phi": "Phi", "theta": "Theta"}
+# run.json "scales" key of each field (U, Phi, Theta).
+SCALE_OF = {f.name: f.scale for f in FIELDS}
 
 
 def differences(fields: Fields, peer: dict[str, Any], names: tuple[str, ...],
@@ -71,8 +74,9 @@ def differences(fields: Fields, peer: dict[str, Any], names: tuple[str, ...],
         else:
             theirs, ours = np.array(peer[name], float)[order], fields.field(name)
         floor = ZERO_FIELD * float(scales.get(SCALE_OF[name], 1.0))
-        size = max(simplex_seminorm(points, fields.cells, ours), floor * math.sqrt(measure), 1e-300)
-        diff = simplex_seminorm(points, fields.cells, ours - theirs)
+        stem = measure_of(name).stem  # the field's norm of E^h
+        size = max(simplex_seminorm(points, fields.cells, ours, stem), floor * math.sqrt(measure), 1e-300)
+        diff = simplex_seminorm(points, fields.cells, ours - theirs, stem)
         nodal = float(np.abs(ours - theirs).max())
         out[name] = FieldDifference(diff, diff / size, nodal, nodal / max(float(np.abs(ours).max()), floor, 1e-300))
     return out, points

@@ -18,6 +18,7 @@ import pandas as pd
 from harness import freefem
 from harness.engine import InlineMeshes, Progress, freefem_startup_s, quiet, run_levels, runs_of, stderr_line, timed_meshes
 from harness.layout import Layout
+from harness.norm_table import FIELD_NAMES, TOTAL, error_column, error_names
 from harness.plot import plot_errors, plot_scaling, plot_time_split
 from harness.rates import PowerLaw, power_fit, scaling_exponents
 from harness.record import RunRecord
@@ -25,8 +26,7 @@ from harness.run import RunResult, check_solver_files
 from harness.scene import Scene, load_scene
 from harness.writers import markdown_table, write_csv, write_json, write_text, write_with
 
-FIELDS = ("u", "phi", "theta")
-ERROR_NAMES = (*FIELDS, "total")
+ERROR_NAMES = error_names()
 # Relative accuracies of the frontier table: E <= tau_rel * ||reference||, per field.
 TAUS_REL = (1e-1, 3e-2, 1e-2, 3e-3, 1e-3)
 # The table gives no prediction for an h more than this factor outside the fitted levels.
@@ -82,7 +82,7 @@ def fit_discretisation(rows: pd.DataFrame, error_levels: Sequence[int], cost_min
     cost = err[err["n"] >= cost_min_n]
     if len(cost) < 2:
         cost = rows.tail(2)
-    errors = {name: power_fit(err["h"], err[f"err_{name}"]) for name in ERROR_NAMES if f"err_{name}" in err}
+    errors = {name: power_fit(err["h"], err[error_column(name)]) for name in ERROR_NAMES if error_column(name) in err}
     h = err["h"].to_numpy(dtype=float)
     return Fits(
         errors=errors,
@@ -191,9 +191,9 @@ def row_of(
         "newton_over_linear": r.newton_over_linear,
         "reused": run.reused,
     }
-    for name in FIELDS:
-        row[f"err_{name}"] = errors.get(name, math.nan)
-    row["err_total"] = sum(errors.get(f, 0.0) for f in FIELDS) if errors else math.nan
+    for name in FIELD_NAMES:
+        row[error_column(name)] = errors.get(name, math.nan)
+    row[error_column(TOTAL)] = sum(errors.get(f, 0.0) for f in FIELD_NAMES) if errors else math.nan
     return row
 
 
@@ -326,7 +326,7 @@ def analyse(study: CostStudy, discretisations: Sequence[str], error_min_n: int =
         top = ref_n // 4 if element == ref_element else ref_n // 2
         levels = [n for n in rows["n"] if error_min_n <= n <= top]
         if len(levels) < 2:  # a short study: the last two levels that have errors
-            levels = list(rows[np.isfinite(rows["err_total"].astype(float))]["n"])[-2:]
+            levels = list(rows[np.isfinite(rows[error_column(TOTAL)].astype(float))]["n"])[-2:]
         study.fits[name] = fit_discretisation(rows, levels, cost_min_n)
     study.frontier = pd.DataFrame(frontier_rows(study.fits, study.norms))
 

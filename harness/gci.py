@@ -23,6 +23,7 @@ from dataclasses import asdict, dataclass
 
 import pandas as pd
 
+from harness.norm_table import FIELD_NAMES, error_column
 from harness.record import RunRecord
 
 SAFETY = 1.25  # Celik et al.'s factor of safety for three grids
@@ -114,7 +115,7 @@ def gci_table(errors: pd.DataFrame, records: dict[int, RunRecord]) -> pd.DataFra
     table, n and err_<field>, blank at the reference) and each scalar output of the runs'
     run.json (`records`, by level)."""
     series: dict[str, dict[int, float]] = {}
-    for column in (c for c in errors.columns if c.startswith("err_") and c != "err_total"):
+    for column in (error_column(f) for f in FIELD_NAMES if error_column(f) in errors.columns):
         graded = errors[errors[column].notna()]
         series[column] = dict(zip(graded["n"].astype(int), graded[column].astype(float)))
     for name in GCI_OUTPUTS:

@@ -20,6 +20,7 @@ from harness.errors import SceneError
 from harness.fields import read_fields
 from harness.guards import geometry_depth, memory_estimate
 from harness.layout import REPO, Layout
+from harness.norm_table import FIELD_NAMES
 from harness.record import RunRecord
 from harness.run import check_solver_files
 from harness.run_checks import judge
@@ -89,7 +90,7 @@ def relative_residuals(record: RunRecord) -> dict[str, float]:
     """Final residual of each field over the largest in its history (the first one, unless
     the initial guess zeroes that field's residual, as zero does for phi and theta)."""
     out = {}
-    for name in ("u", "phi", "theta"):
+    for name in FIELD_NAMES:
         history = [abs(v) for v in (record.residuals or {}).get(name, [])]
         top = max(history, default=0.0)
         out[f"residual_{name}"] = history[-1] / top if top > 0 else (0.0 if history else math.nan)

@@ -3,6 +3,8 @@
     ||v||_V^2 = int eps(v):eps(v),   ||xi||_W^2 = ||eta||_Q^2 = int |grad xi|^2
 
 P1 gradients are constant per triangle, so the integrals are exact sums of area x integrand.
+Which norm each field is measured in is harness/norm_table.py's: the integrands here are
+looked up by its stems (P1_INTEGRANDS, EXACT_INTEGRANDS), as freefem/norms.idp's are.
 """
 
 from __future__ import annotations
@@ -17,6 +19,7 @@ from matplotlib.tri import Triangulation
 from harness.errors import FieldsError, MeshError
 from harness.box_mesh import grid_index, kuhn_weights
 from harness.fields import Fields
+from harness.norm_table import MMS_NORMS, measure_of
 
 
 def kuhn_located(coarse: Fields, at: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
@@ -56,11 +59,14 @@ def strain_seminorm_sq(points: np.ndarray, triangles: np.ndarray, u: np.ndarray)
     return float(np.sum(area * (u1x**2 + u2y**2 + 2.0 * e12**2)))
 
 
+# norm_table's integrand stems, squared and integrated over triangles (P1 fields).
+P1_INTEGRANDS: dict[str, Callable[[np.ndarray, np.ndarray, np.ndarray], float]] = {
+    "strain": strain_seminorm_sq, "grad": gradient_seminorm_sq}
+
+
 def seminorm(points: np.ndarray, triangles: np.ndarray, values: np.ndarray) -> float:
     """||.||_V for a vector field (N, 2), ||.||_W = ||.||_Q for a scalar field (N,)."""
-    if values.ndim == 2:
-        return float(np.sqrt(strain_seminorm_sq(points, triangles, values)))
-    return float(np.sqrt(gradient_seminorm_sq(points, triangles, values)))
+    return float(np.sqrt(P1_INTEGRANDS["strain" if values.ndim == 2 else "grad"](points, triangles, values)))
 
 
 # Dunavant's 6-point rule, exact for degree 4 (barycentric points, weights summing to 1).
@@ -72,22 +78,32 @@ QUAD_WEIGHTS = np.array([0.109951743655321869] * 3 + [0.223381589678011466] * 3)
 Exact = Callable[[np.ndarray, np.ndarray], np.ndarray]
 
 
+# norm_table's scalar stems of the manufactured norms, at the quadrature points: (P1 value,
+# its d/dx, d/dy; the exact value, d/dx, d/dy) -> the squared difference. A vector field's
+# norm is the sum over its components (norms.idp's vecL2, fullGrad).
+EXACT_INTEGRANDS: dict[str, Callable[..., np.ndarray]] = {
+    "l2": lambda uh, dx, dy, f, fx, fy: (uh - f) ** 2,
+    "grad": lambda uh, dx, dy, f, fx, fy: (dx - fx) ** 2 + (dy - fy) ** 2,
+}
+
+
 def exact_errors(points: np.ndarray, triangles: np.ndarray, nodal: np.ndarray,
                  exact: Sequence[tuple[Exact, Exact, Exact]]) -> dict[str, float]:
-    """L2 error and full-gradient H1-seminorm error of a P1 field (N,) or (N, k) against
-    exact functions (value, d/dx, d/dy of each component), by quadrature on each triangle:
-    the manufactured-solution norms (freefem/norms.idp l2DiffSq, fullGradDiffSq)."""
+    """The error of a P1 field (N,) or (N, k) in every manufactured norm of norm_table.py
+    (L2, full-gradient H1 seminorm) against exact functions (value, d/dx, d/dy of each
+    component), by quadrature on each triangle, keyed by the norm."""
     corners = points[triangles]  # (M, 3, 2)
     qp = np.einsum("qk,mkd->mqd", QUAD_POINTS, corners)  # (M, Q, 2)
     qx, qy = qp[..., 0], qp[..., 1]
     columns = [nodal[:, i] for i in range(nodal.shape[1])] if nodal.ndim == 2 else [nodal]
-    l2 = h1 = 0.0
+    sums = dict.fromkeys((n.key for n in MMS_NORMS), 0.0)
     for column, (f, fx, fy) in zip(columns, exact, strict=True):
         dx, dy, area = gradients(points, triangles, column)
-        uh = np.einsum("qk,mk->mq", QUAD_POINTS, column[triangles])
-        l2 += np.sum(area * ((uh - f(qx, qy)) ** 2 @ QUAD_WEIGHTS))
-        h1 += np.sum(area * (((dx[:, None] - fx(qx, qy)) ** 2 + (dy[:, None] - fy(qx, qy)) ** 2) @ QUAD_WEIGHTS))
-    return {"L2": math.sqrt(l2), "H1": math.sqrt(h1)}
+        at = (np.einsum("qk,mk->mq", QUAD_POINTS, column[triangles]), dx[:, None], dy[:, None],
+              f(qx, qy), fx(qx, qy), fy(qx, qy))
+        for norm in MMS_NORMS:
+            sums[norm.key] += np.sum(area * (EXACT_INTEGRANDS[norm.scalar](*at) @ QUAD_WEIGHTS))
+    return {key: math.sqrt(value) for key, value in sums.items()}
 
 
 def transfer_weights(coarse: Fields, points: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
@@ -145,10 +161,11 @@ def transfer(coarse: Fields, name: str, points: np.ndarray,
     return np.einsum("nk,nk...->n...", w, at_corners)
 
 
-def simplex_seminorm(points: np.ndarray, cells: np.ndarray, values: np.ndarray) -> float:
+def simplex_seminorm(points: np.ndarray, cells: np.ndarray, values: np.ndarray, stem: str | None = None) -> float:
     """seminorm on simplices of any dimension (tetrahedra of a box scene): the gradient of
     a P1 function solves edges @ grad = jumps on each simplex; ||.||_V with
-    eps : eps = sum eps_ii^2 + 2 sum_{i<j} eps_ij^2 for a vector field."""
+    eps : eps = sum eps_ii^2 + 2 sum_{i<j} eps_ij^2 (norm_table's stem "strain", the default
+    for a vector field), else the full gradient ("grad")."""
     d = cells.shape[1] - 1
     p = points[cells][:, :, :d]
     edges = p[:, 1:] - p[:, :1]
@@ -156,7 +173,7 @@ def simplex_seminorm(points: np.ndarray, cells: np.ndarray, values: np.ndarray) 
     v = values[cells]
     jumps = v[:, 1:] - v[:, :1]
     grad = np.linalg.solve(edges, jumps if values.ndim == 2 else jumps[:, :, None])  # [m, k, i] = d v_i / d x_k
-    if values.ndim == 2:
+    if (stem or ("strain" if values.ndim == 2 else "grad")) == "strain":
         eps = 0.5 * (grad + np.swapaxes(grad, 1, 2))
         density = np.sum(eps**2, axis=(1, 2))
     else:
@@ -210,17 +227,19 @@ def tetrahedron_weights(coarse: Fields, at: np.ndarray, tol: float = 1e-5,
 
 
 def error_norms(coarse: Fields, fine: Fields, names: list[str]) -> dict[str, float]:
-    """||fine - coarse|| per field, on the fine mesh."""
+    """||fine - coarse|| per field in its norm of E^h (norm_table.MEASURE), on the fine mesh."""
     if coarse.tetrahedra is not None:
         try:  # a Kuhn mesh of a box (harness/box_mesh.py): its grid locates every point at once
             nodes, w = kuhn_located(coarse, fine.points)
         except MeshError:  # any other (gmsh's): point location, exact on nested meshes as on 2D
             nodes, w = tetrahedron_weights(coarse, fine.points)
         return {name: simplex_seminorm(fine.points, fine.cells,
-                                       fine.field(name) - np.einsum("nk,nk...->n...", w, coarse.field(name)[nodes]))
+                                       fine.field(name) - np.einsum("nk,nk...->n...", w, coarse.field(name)[nodes]),
+                                       measure_of(name).stem)
                 for name in names}
     weights = transfer_weights(coarse, fine.points)
     return {
-        name: seminorm(fine.points, fine.triangles, fine.field(name) - transfer(coarse, name, fine.points, weights))
+        name: float(np.sqrt(P1_INTEGRANDS[measure_of(name).stem](
+            fine.points, fine.triangles, fine.field(name) - transfer(coarse, name, fine.points, weights))))
         for name in names
     }

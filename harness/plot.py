@@ -12,18 +12,12 @@ import pandas as pd
 from matplotlib.axes import Axes
 from matplotlib.figure import Figure  # no pyplot: no global figure state, no GUI backend
 
+from harness.norm_table import FIELD_NAMES, TOTAL, error_column, error_label, error_names, mms_norm
 from harness.rates import scaling_exponents
 from harness.study import Study
 
 if TYPE_CHECKING:
     from harness.frontier import CostStudy
-
-LABELS = {
-    "u": r"$\|u-u^h\|_V$",
-    "phi": r"$\|\varphi-\varphi^h\|_W$",
-    "theta": r"$\|\theta-\theta^h\|_Q$",
-    "total": r"$E^h$ (total)",
-}
 
 
 def plot_convergence(study: Study, target: Path) -> None:
@@ -31,12 +25,12 @@ def plot_convergence(study: Study, target: Path) -> None:
     h = graded["h"].to_numpy(dtype=float)
     fig = Figure(figsize=(6.4, 4.8))
     ax = fig.subplots()
-    for name in (*study.fields, "total"):
-        errors = graded[f"err_{name}"].to_numpy(dtype=float)
-        style = "k-o" if name == "total" else "--s"
-        label = f"{LABELS[name]}, slope {study.slopes[name]['all']:.2f}"
+    for name in error_names(study.fields):
+        errors = graded[error_column(name)].to_numpy(dtype=float)
+        style = "k-o" if name == TOTAL else "--s"
+        label = f"{error_label(name)}, slope {study.slopes[name]['all']:.2f}"
         ax.loglog(h, errors, style, label=label, markersize=4)
-    add_slope_guide(ax, h, graded["err_total"].to_numpy(dtype=float))
+    add_slope_guide(ax, h, graded[error_column(TOTAL)].to_numpy(dtype=float))
     ax.set_xlabel("h")
     ax.set_ylabel(f"error against h = 1/{study.reference}")
     ax.set_title(f"{study.scene.name}: convergence (initial guess {study.scene.initial_guess})")
@@ -54,16 +48,16 @@ def add_slope_guide(ax: Axes, h: np.ndarray, total: np.ndarray) -> None:
 
 
 def plot_mms(errors: pd.DataFrame, rates: pd.DataFrame, target: Path) -> None:
-    """One panel per case: relative errors against h, a colour per field, L2 solid and H1
-    dashed, the fitted slope and its standard error in the legend."""
+    """One panel per case: relative errors against h, a colour per field, a line style per
+    norm (norm_table.MMS_NORMS), the fitted slope and its standard error in the legend."""
     cases = list(dict.fromkeys(errors["case"]))
-    colours = {"u": "C0", "phi": "C1", "theta": "C2"}
+    colours = {name: f"C{i}" for i, name in enumerate(FIELD_NAMES)}
     fig = Figure(figsize=(5.2 * len(cases), 4.6))
     axes = fig.subplots(1, len(cases), squeeze=False)[0]
     for ax, case in zip(axes, cases):
         for (field, norm), group in errors[errors["case"] == case].groupby(["field", "norm"], sort=False):
             rate = rates[(rates["case"] == case) & (rates["field"] == field) & (rates["norm"] == norm)].iloc[0]
-            ax.loglog(group["h"], group["relative_error"], "-o" if norm == "L2" else "--s", markersize=4,
+            ax.loglog(group["h"], group["relative_error"], mms_norm(norm).style, markersize=4,
                       color=colours.get(field), label=f"{field} {norm}: {rate['slope']:.2f} ± {rate['slope_stderr']:.2f}")
         h = sorted(set(errors["h"]))
         ax.set_xticks(h, [f"1/{round(1 / v)}" for v in h])
@@ -82,14 +76,14 @@ def plot_errors(study: CostStudy, x: str, xlabel: str, target: Path) -> None:
     axes = fig.subplots(2, 2).ravel()
     table = study.table[~study.table["discretisation"].str.contains("reference")]
     styles = ("-o", "--s", ":^", "-.D", "-v")  # P1 and P1-rtol have the same errors: both show
-    for ax, name in zip(axes, LABELS):  # the error names, u, phi, theta, total
+    for ax, name in zip(axes, error_names()):  # u, phi, theta, total
         for i, (disc, rows) in enumerate(table.groupby("discretisation", sort=False)):
-            rows = rows[np.isfinite(rows[f"err_{name}"].astype(float))]
+            rows = rows[np.isfinite(rows[error_column(name)].astype(float))]
             fit = study.fits.get(disc)
             label = disc + (f" (p = {fit.errors[name].exponent:.2f})" if fit and name in fit.errors else "")
-            ax.loglog(rows[x], rows[f"err_{name}"], styles[i % len(styles)], markersize=5 - i % 3,
+            ax.loglog(rows[x], rows[error_column(name)], styles[i % len(styles)], markersize=5 - i % 3,
                       fillstyle="none" if i % 2 else "full", label=label)
-        ax.set_title(LABELS[name])
+        ax.set_title(error_label(name))
         ax.set_xlabel(xlabel)
         ax.grid(True, which="both", alpha=0.3)
         ax.legend(fontsize=8)

@@ -25,7 +25,7 @@ CHECK_KEYS = frozenset({
     "max_sigma_nu", "min_sigma_nu", "max_abs_sigma_tau", "S", "open_nodes", "natural_heat_flux",
     "natural_charge_flux", "heat_source",
     "heat_out_dirichlet", "heat_imbalance", "max_heat_flux_contact", "max_heat_flux_open",
-    "max_heat_flux_open_expected", "charge_source", "charge_out_dirichlet", "charge_imbalance",
+    "max_heat_flux_open_expected", "charge_source", "charge_out_dirichlet", "charge_imbalance", "electrode_charge",
     "max_charge_flux_contact", "max_charge_flux_open", "max_charge_flux_open_expected",
 })
 

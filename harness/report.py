@@ -10,6 +10,7 @@ import pandas as pd
 
 from harness.atomic import sibling_temp
 from harness.layout import Layout
+from harness.norm_table import TOTAL, error_column, error_names
 from harness.plot import plot_convergence
 from harness.rates import scaling_exponents
 from harness.fields import read_fields
@@ -65,7 +66,7 @@ def summary(study: Study) -> dict[str, Any]:
         "slope_band": [low, high],
         "verdict": "pass" if study.passed else "fail",
         # The three terms carry different units; say which one dominates the sum.
-        "share_of_total_at_finest": {f: finest[f"err_{f}"] / finest["err_total"] for f in study.fields},
+        "share_of_total_at_finest": {f: finest[error_column(f)] / finest[error_column(TOTAL)] for f in study.fields},
         "sweep_wall_s": study.wall_s,
         # What a level costs against its unknowns (wall time, FreeFEM's peak memory), fitted
         # from n = COST_FIT_FROM on: the coarser levels are start-up, not the solver's scaling.
@@ -100,5 +101,5 @@ def cost_exponents(study: Study) -> dict[str, float]:
 
 def format_table(study: Study) -> str:
     columns = ["n", "h", "dofs", "newton_iterations", "wall_s"]
-    columns += [f"err_{f}" for f in (*study.fields, "total")] + ["order_total"]
+    columns += [error_column(f) for f in error_names(study.fields)] + [f"order_{TOTAL}"]
     return study.table[columns].to_string(index=False, float_format=lambda v: f"{v:.4g}", na_rep="-")

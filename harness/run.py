@@ -261,6 +261,8 @@ def solver_inputs(
         for coarse in coarser_meshes(scene.geometry, n, scene.multigrid_levels, scene.sections.run.multigrid_coarsest,
                                      mesh.resolve().parent, make_meshes):
             options += ["-mg.mesh", str(coarse)]
+    if parallel:
+        options += ["-parallel.krylov_rtol", repr(scene.sections.run.krylov_rtol)]
     if parallel and scene.coarse_levels:
         options += coarse_space_options(scene, n, mesh, make_meshes)
     if start:

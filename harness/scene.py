@@ -57,7 +57,8 @@ class Scene:
 
     @property
     def fields(self) -> tuple[str, ...]:
-        return ("u",) + ("phi",) * ("piezoelectric" in self.effects) + ("theta",) * ("thermal" in self.effects)
+        """The fields the effects bring in (harness/unknowns.py), in their order."""
+        return tuple(f.name for f in Unknowns(self.effects).fields)
 
     @property
     def element(self) -> str:

@@ -112,6 +112,7 @@ DATA_EFFECT: dict[tuple[str, str | None], str] = {
     ("thermal_contact", None): "thermal_contact",
     ("loads", "surface_charge"): "piezoelectric",
     ("loads", "charge_density"): "piezoelectric",
+    ("loads", "electrode_potential"): "piezoelectric",
     ("loads", "heat_source"): "thermal",
 }
 
@@ -170,6 +171,8 @@ SCHEMA: dict[str, dict[str, Key]] = {
         for name in (
             "traction_x", "traction_y", "traction_z", "surface_charge", "body_force_x",
             "body_force_y", "body_force_z", "charge_density", "heat_source",
+            # phi on the parts whose role is `electrode` [V] (the `ground` parts hold 0)
+            "electrode_potential",
         )
     },
     "contact": {
@@ -221,13 +224,17 @@ SCHEMA: dict[str, dict[str, Key]] = {
         # With run.ranks > 1: the Schwarz preconditioner's second level (freefem/coarse_space.idp).
         # "nested": a coarse-grid correction on the mesh coarse_levels halvings of n below the
         # level (the coarsest is n = 2), whose Krylov iterations stay bounded as the ranks grow
-        # up to h = 1/128 but which stagnated at 2D h = 1/256 on 2 ranks; "none" (the default
-        # until that is understood): one-level RAS, whose iterations grow with the ranks
+        # (2D h = 1/64 to 1/256: 25-28 per Newton step); "none" (the default, as the committed
+        # rank tables were measured): one-level RAS, whose iterations grow with the ranks
         # (docs/scale-out.md, results/solvers/ranks.csv).
         "coarse_space": Key(str, "none", one_of("none", "nested")),
         # 0: a coarse mesh with about 1/64 of the unknowns, 3 halvings in 2D and 2 in 3D
         # (measured against 2 and 3, 4, docs/scale-out.md).
         "coarse_levels": Key(int, 0, nonnegative),
+        # With run.ranks > 1: GMRES's tolerance on the true residual relative to the right-hand
+        # side (the sequential solver's 1e-11). Below the residual's round-off floor (about
+        # 2.6e-11 at 2D h = 1/256) it stops at the floor and accepts within 1e3 times this.
+        "krylov_rtol": Key(float, 1e-11, positive),
     },
     "study": {
         "levels": Key(list, check=positive_ints),

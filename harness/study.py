@@ -14,13 +14,11 @@ from harness.errors import RunError
 from harness.fields import Fields, read_fields
 from harness.freefem import freefem_version
 from harness.layout import Layout
+from harness.norm_table import FIELD_NAMES, TOTAL, error_column, error_names
 from harness.norms import error_norms
 from harness.rates import fitted_slope, pairwise_orders
 from harness.run import RunResult, check_solver_files
 from harness.scene import Scene
-
-# Fields the error measure knows, in the order docs/model.md section 7 sums them (V, W, Q).
-NORMED_FIELDS = ("u", "phi", "theta")
 
 
 @dataclass(frozen=True)
@@ -69,7 +67,7 @@ def run_study(
     with BackgroundMeshes(scene, levels, layout) as meshes:
         runs = runs_of(run_levels(scene, meshes, layout, force=force, progress=progress,
                                   chain=scene.initial_guess == "coarser", jobs=jobs))
-    fields = tuple(f for f in NORMED_FIELDS if f in (runs[levels[-1]].record.fields or NORMED_FIELDS))
+    fields = tuple(f for f in FIELD_NAMES if f in (runs[levels[-1]].record.fields or FIELD_NAMES))
     solutions = {n: read_fields(run.solution) for n, run in runs.items()}
     table = error_table(runs, fields, solutions)
     return Study(scene, fields, table, slopes(table, fields), runs, time.perf_counter() - start, solutions)
@@ -97,12 +95,12 @@ def error_table(runs: dict[int, RunResult], fields: tuple[str, ...],
             "newton_iterations": record.newton_iterations,
             "wall_s": record.wall_s,
         }
-        row.update({f"err_{f}": errors[f] for f in fields})
-        row["err_total"] = sum(errors.values())
+        row.update({error_column(f): errors[f] for f in fields})
+        row[error_column(TOTAL)] = sum(errors.values())
         rows.append(row)
     table = pd.DataFrame(rows)
-    for name in (*fields, "total"):
-        table[f"order_{name}"] = pairwise_orders(table["h"], table[f"err_{name}"])
+    for name in error_names(fields):
+        table[f"order_{name}"] = pairwise_orders(table["h"], table[error_column(name)])
     return table
 
 
@@ -113,8 +111,8 @@ def slopes(table: pd.DataFrame, fields: tuple[str, ...]) -> dict[str, dict[str, 
     window = graded.iloc[:-1]
     return {
         name: {
-            "all": fitted_slope(graded["h"], graded[f"err_{name}"]),
-            "window": fitted_slope(window["h"], window[f"err_{name}"]),
+            "all": fitted_slope(graded["h"], graded[error_column(name)]),
+            "window": fitted_slope(window["h"], window[error_column(name)]),
         }
-        for name in (*fields, "total")
+        for name in error_names(fields)
     }

@@ -13,24 +13,22 @@ from harness.engine import InlineMeshes, Progress, run_levels, runs_of, stderr_l
 from harness.errors import RunError
 from harness.freefem import freefem_version
 from harness.layout import REPO, Layout
+from harness.norm_table import MMS_NORMS
 from harness.rates import slope_fit
 from harness.run import check_solver_files
 from harness.scene import Scene
 
-MMS_CASES = {"bulk": REPO / "cases" / "mms" / "bulk.toml", "contact": REPO / "cases" / "mms" / "contact.toml"}
+MMS_CASES = {"bulk": REPO / "cases" / "mms" / "bulk.toml", "contact": REPO / "cases" / "mms" / "contact.toml",
+             "coulomb": REPO / "cases" / "mms" / "contact_coulomb.toml"}
 MMS_LEVELS = (4, 8, 16, 32)
 # The 3D cases (issue 12) on their own levels: h = 1/32 of the 2x1x1 box is ~350,000 dofs.
 MMS_CASES_3D = {"bulk3d": REPO / "cases" / "mms" / "bulk3d.toml", "contact3d": REPO / "cases" / "mms" / "contact3d.toml"}
 MMS_LEVELS_3D = (4, 8, 16)
-EXPECTED = {"L2": 2.0, "H1": 1.0}  # P1 on a smooth solution
-# Accepted least-squares slopes from h = 1/4 on: the expected order -0.1/+0.1 in L2 and
-# -0.05/+0.05 in the H1 seminorm (measured 1.95-1.99 and 1.00-1.01 over 1/4 ... 1/16, the
-# deficit in L2 being the coarsest level's pre-asymptotic error); a wrong sign or factor
-# anywhere makes some error stagnate (slope ~0: tests/test_mms.py's mutations).
-BANDS = {"L2": (1.9, 2.1), "H1": (0.95, 1.05)}
-# 3D over 1/4 ... 1/16, one level fewer and coarser: u's L2 slope is 1.86-1.89 there (last
-# pairs 1.92-1.94, rising), the other fields' 1.98-2.00; the L2 band starts at 1.8.
-BANDS_3D = {"L2": (1.8, 2.1), "H1": (0.95, 1.05)}
+# P1's order on a smooth solution and the accepted slopes, per norm (norm_table.MMS_NORMS,
+# which says why the bands are what they are).
+EXPECTED = {n.key: n.order for n in MMS_NORMS}
+BANDS = {n.key: n.band for n in MMS_NORMS}
+BANDS_3D = {n.key: n.band_3d for n in MMS_NORMS}
 
 
 def band(case: str, norm: str) -> tuple[float, float]:

@@ -19,6 +19,7 @@ from harness.errors import SceneError
 from harness.fields import read_fields
 from harness.layout import REPO, Layout
 from harness.mms import MACROS, X, Y, derive, fe_errors, macros, material_constants, numeric, parse_exact
+from harness.norm_table import MMS_NORMS
 from harness.scene import load_scene
 from harness.script import main_script
 from harness.verification import BANDS, MMS_CASES, mms_errors, mms_rates
@@ -206,7 +207,7 @@ def quiet(line: str) -> None:
 
 @pytest.fixture(scope="module")
 def coarse_studies(tmp_path_factory):
-    """Levels 4, 8, 16 of both manufactured cases (the committed table goes on to 1/32)."""
+    """Levels 4, 8, 16 of every 2D manufactured case (the committed table goes on to 1/32)."""
     layout = Layout(results=tmp_path_factory.mktemp("mms"))
     tables = [mms_errors(load_scene(path), (4, 8, 16), layout, jobs=2, progress=quiet).assign(case=case)
               for case, path in MMS_CASES.items()]
@@ -214,7 +215,7 @@ def coarse_studies(tmp_path_factory):
 
 
 @pytest.mark.parametrize("case", list(MMS_CASES))
-@pytest.mark.parametrize("norm", ["L2", "H1"])
+@pytest.mark.parametrize("norm", [n.key for n in MMS_NORMS])
 def test_manufactured_errors_converge_at_the_p1_rates(coarse_studies, case, norm):
     """Slopes over h = 1/4 ... 1/16 inside harness/verify.py's BANDS (2 -/+ 0.1 in L2,
     1 -/+ 0.05 in the H1 seminorm), for every field, and a straight log-log line."""
@@ -254,7 +255,7 @@ def test_freefem_errors_agree_with_an_independent_quadrature(coarse_studies, cas
     ours = fe_errors(fields.points, fields.triangles, {f: fields.field(f) for f in scene.fields}, exact)
     theirs = errors[(errors["case"] == case) & (errors["n"] == 8)].set_index(["field", "norm"])["error"]
     for field in scene.fields:
-        for norm in ("L2", "H1"):
+        for norm in (n.key for n in MMS_NORMS):
             # FreeFEM differentiates a P3 interpolant of the exact field, this quadrature the
             # field itself: a relative difference O(h^2), measured <= 2.2e-4 at h = 1/8.
             assert ours[field][norm] == pytest.approx(theirs[(field, norm)], rel=1e-3), (field, norm)
@@ -297,7 +298,7 @@ def test_a_wrong_term_in_the_scheme_fails_the_manufactured_rates(tmp_path, mutat
 
 
 # Coulomb friction (issue 23, docs/laws.md): the contact case with the slip bound mu c_nu (s)_+.
-COULOMB = REPO / "cases" / "mms" / "contact_coulomb.toml"
+COULOMB = MMS_CASES["coulomb"]
 
 
 def test_the_coulomb_case_is_open_slipping_and_sticking_on_gamma3():
@@ -317,17 +318,9 @@ def test_the_coulomb_case_is_open_slipping_and_sticking_on_gamma3():
     assert (closed & (shear > bound)).any() and (closed & (shear < bound)).any()
 
 
-@pytest.fixture(scope="module")
-def coulomb_study(tmp_path_factory):
-    layout = Layout(results=tmp_path_factory.mktemp("coulomb"))
-    return mms_errors(load_scene(COULOMB), (4, 8, 16), layout, jobs=2, progress=quiet).assign(case="coulomb")
-
-
-@pytest.mark.parametrize("norm", ["L2", "H1"])
-def test_the_coulomb_case_converges_at_the_p1_rates(coulomb_study, norm):
-    """As the Tresca case: every field inside BANDS over h = 1/4 ... 1/16 (measured over 1/4
-    ... 1/32: L2 1.96-1.99, H1 1.00-1.01, standard errors <= 0.011)."""
-    assert_p1_rates(coulomb_study, "coulomb", norm)
+# Its rates over h = 1/4 ... 1/16, its error levels and the independent quadrature are those
+# of every case of MMS_CASES above (make verify, h = 1/4 ... 1/32: L2 slopes 1.96-1.99, H1
+# 1.00-1.01, standard errors <= 0.011).
 
 
 def test_a_halved_coulomb_bound_in_the_residual_fails_the_manufactured_rates(tmp_path):

@@ -11,7 +11,11 @@ import pytest
 from harness.errors import FieldsError
 from harness.fields import Fields, read_fields
 from harness.mesh import build_mesh
-from harness.norms import error_norms, exact_errors, gradient_seminorm_sq, seminorm, strain_seminorm_sq, transfer
+from harness.layout import REPO
+from harness.norm_table import FIELD_NAMES, MEASURE, MMS_NORMS, norm_table_idp, norm_table_path
+from harness.norms import (EXACT_INTEGRANDS, P1_INTEGRANDS, error_norms, exact_errors, gradient_seminorm_sq, seminorm,
+                           strain_seminorm_sq, transfer)
+from harness.unknowns import FIELDS
 from harness.scene import load_scene
 
 AREA = 4.0  # the paper's (0,4)x(0,1)
@@ -171,3 +175,22 @@ def test_point_location_in_unstructured_tetrahedra_reproduces_linear_fields(tmp_
     value = np.random.default_rng(2).normal(size=len(kuhn.points))  # any P1 field
     assert np.allclose(np.einsum("nk,nk->n", got_w, value[got_nodes]),
                        np.einsum("nk,nk->n", expected_w, value[expected_nodes]), atol=1e-12)
+
+
+def test_committed_norm_table_idp_is_generated_from_the_table():
+    """freefem/norm_table.idp is `python -m harness.norm_table`'s output: FreeFEM and Python
+    measure each field in the same norm."""
+    assert norm_table_path().read_text() == norm_table_idp()
+
+
+def test_every_norm_of_the_table_has_its_integrands_in_both_languages():
+    """Each stem the table names is an integrand of freefem/norms.idp (of a difference and of a
+    field alone) and of harness/norms.py; the error measure covers every field once."""
+    idp = (REPO / "freefem" / "norms.idp").read_text()
+    for stem in {t.stem for t in MEASURE} | {s for n in MMS_NORMS for s in (n.vector, n.scalar)}:
+        assert f"macro {stem}DiffSq(s, a, b)" in idp and f"macro {stem}Sq(b)" in idp, stem
+    assert {t.stem for t in MEASURE} <= set(P1_INTEGRANDS)
+    assert {n.scalar for n in MMS_NORMS} <= set(EXACT_INTEGRANDS)
+    assert [t.field for t in MEASURE] == list(FIELD_NAMES) == [f.name for f in FIELDS]
+    # docs/model.md section 7: u in the strain (energy) norm V, phi and theta in W, Q = |grad|.
+    assert [(t.norm, t.stem) for t in MEASURE] == [("V", "strain"), ("W", "grad"), ("Q", "grad")]

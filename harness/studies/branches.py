@@ -35,6 +35,7 @@ from harness.branch_starts import LEVELS, STARTS, branch_row, same_branch, start
 from harness.errors import SceneError
 from harness.executor import cluster, each
 from harness.layout import REPO
+from harness.norm_table import error_names
 from harness.pipeline import Guarded, Plan, run_pipeline
 from harness.writers import cell, markdown_table, write_csv, write_text
 
@@ -52,7 +53,7 @@ def markdown(table: pd.DataFrame) -> str:
         if row["status"] != "converged":
             rows.append([row["start"], "failed", row["note"]])
             continue
-        slopes = " / ".join(cell(row.get(f"slope_{f}")) for f in ("u", "phi", "theta", "total"))
+        slopes = " / ".join(cell(row.get(f"slope_{f}")) for f in error_names())
         rows.append([row["start"], row["branch"], row["newton_iterations"], cell(row["max_theta"]),
                      f"[{cell(row['min_phi'])}, {cell(row['max_phi'])}]", cell(row["max_abs_u"]),
                      cell(row["contact_force"]), cell(row["heat_in_contact"]), cell(row["charge_in_contact"]),

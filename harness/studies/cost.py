@@ -35,6 +35,7 @@ from harness.errors import SceneError
 from harness.frontier import (DISCRETISATIONS, CostStudy, frontier_markdown, planned_scenes, run_cost, scene_names,
                               write_outputs)
 from harness.layout import REPO, Layout
+from harness.norm_table import FIELD_NAMES, error_column
 from harness.pipeline import Guarded, Plan, run_pipeline
 from harness.scene import load_scene
 from harness.segments import Geometry
@@ -87,7 +88,7 @@ def run(args: argparse.Namespace) -> int:
     def report(study: CostStudy) -> None:
         written = write_outputs(study, args.results)
         print(study.table[["discretisation", "n", "dofs", "newton_iterations", "wall_s", "chain_s", "peak_rss_mb",
-                           "err_u", "err_phi", "err_theta", "newton_over_linear"]]
+                           *map(error_column, FIELD_NAMES), "newton_over_linear"]]
               .to_string(index=False, float_format=lambda v: f"{v:.4g}"))
         print(frontier_markdown(study))
         print("wrote " + ", ".join(str(p) for p in written))

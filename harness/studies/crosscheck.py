@@ -20,13 +20,14 @@ from harness.errors import Disagreement, FieldsError, RunError, SceneError
 from harness.faults import check_results_root
 from harness.fields import Fields, read_fields
 from harness.layout import Layout
+from harness.norm_table import MEASURE
 from harness.peer import material_values, pressed_depth, problem, require_getfem, run_peer
 from harness.record import RunRecord
 from harness.scene import Scene, load_scene
 
 # The coarse levels a cross-check takes by default: enough to see round-off, seconds each.
 COARSE = {2: (2, 4, 8), 3: (2, 4)}
-NORM_OF = {"u": "V", "phi": "W", "theta": "Q"}
+NORM_OF = {term.field: term.norm for term in MEASURE}  # V, W, Q: the columns rel_u_V, ...
 
 
 def add_arguments(parser: argparse.ArgumentParser) -> None:

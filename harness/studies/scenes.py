@@ -20,7 +20,8 @@ from harness.layout import REPO, Layout
 from harness.pipeline import Guarded, Plan, run_pipeline
 from harness.report import write_report
 from harness.scene import Scene, load_scene
-from harness.study import NORMED_FIELDS, Study, run_study
+from harness.norm_table import FIELD_NAMES, TOTAL
+from harness.study import Study, run_study
 from harness.writers import write_csv
 
 
@@ -38,9 +39,9 @@ def scene_row(study: Study) -> dict[str, Any]:
         "sweep_wall_s": study.wall_s,
         "peak_rss_mb": finest.peak_rss_mb,
     }
-    for field in NORMED_FIELDS:
+    for field in FIELD_NAMES:
         row[f"slope_{field}"] = study.slopes[field]["all"] if field in study.fields else float("nan")
-    row["slope_total"] = study.slopes["total"]["all"]
+    row[f"slope_{TOTAL}"] = study.slopes[TOTAL]["all"]
     return row
 
 

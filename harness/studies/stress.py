@@ -36,6 +36,7 @@ from harness.freefem import freefem_version
 from harness.hard_cases import (PAPER_LEVELS, PAPER_STARTS, case_cost, case_files, paper_iterations, paper_scene,
                                 passed, summary_row, timed_case)
 from harness.layout import REPO
+from harness.norm_table import FIELD_NAMES
 from harness.pipeline import Guarded, Plan, run_pipeline
 from harness.scene import load_scene
 from harness.writers import cell, markdown_table, write_csv, write_text
@@ -57,7 +58,7 @@ def markdown(table: pd.DataFrame) -> str:
             checks = "pass" if not failed else "FAIL " + ", ".join(failed)
         else:
             checks = row["note"].split(":")[0]
-        res = " / ".join(cell(row.get(f"residual_{f}")) or "–" for f in ("u", "phi", "theta"))
+        res = " / ".join(cell(row.get(f"residual_{f}")) or "–" for f in FIELD_NAMES)
         nodes = " / ".join(cell(row.get(k)) or "–" for k in ("active_nodes", "slip_nodes", "gamma3_nodes"))
         rows.append([row["case"], row["status"], row["n"], row["iterations_per_level"], res,
                      cell(row.get("damping_steps")), cell(row.get("active_set_changes")), nodes,

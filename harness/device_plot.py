@@ -1,0 +1,84 @@
+"""A picture of a device scene's solution (`python -m harness.device_plot results/strip_actuator/n16`):
+for a 2D body, phi, theta and the displacement on the deformed mesh (displacement and
+thickness exaggerated: a device is thin); for a 3D body, phi and theta on its bottom face
+(where a device meets its pad) and on the section y = 0 (harness/slices.py), from solution.vtu."""
+
+from __future__ import annotations
+
+import sys
+from pathlib import Path
+
+import matplotlib
+
+matplotlib.use("Agg")
+import matplotlib.pyplot as plt  # noqa: E402
+import numpy as np  # noqa: E402
+from matplotlib.tri import Triangulation  # noqa: E402
+
+from harness.fields import Fields, read_fields  # noqa: E402
+from harness.slices import plane  # noqa: E402
+
+PANELS = (("phi", "V"), ("theta", "K"))
+
+
+def contour(ax: plt.Axes, tri: Triangulation, values: np.ndarray, label: str) -> None:
+    low, high = float(values.min()), float(values.max())
+    levels = np.linspace(low, high if high > low else low + 1.0, 25)
+    c = ax.tricontourf(tri, values, levels=levels, cmap="viridis", extend="both")
+    plt.colorbar(c, ax=ax, label=label)
+
+
+def render_2d(f: Fields, fig: plt.Figure) -> None:
+    pts, u = f.points, f.field("u")
+    length, thickness = np.ptp(pts[:, 0]), np.ptp(pts[:, 1])
+    # The largest displacement drawn as a tenth of the thickness, then the thickness shown at
+    # a fifth of the length: the shape of the strain, not its size.
+    scale = 0.1 * thickness / max(np.abs(u).max(), 1e-300)
+    stretch = 0.2 * length / max(thickness, 1e-300)
+    moved = pts + scale * u
+    tri = Triangulation(1e3 * moved[:, 0], 1e3 * stretch * moved[:, 1], f.triangles)
+    axes = fig.subplots(3, 1)
+    for ax, (name, unit) in zip(axes, (*PANELS, ("|u|", "m"))):
+        values = np.linalg.norm(u, axis=1) if name == "|u|" else f.field(name)
+        contour(ax, tri, values, f"{name} [{unit}]")
+        ax.set(title=f"{name}; displacement x {scale:.2g}, thickness x {stretch:.2g}", xlabel="x [mm]",
+               ylabel=f"y [mm] x {stretch:.2g}")
+        ax.set_aspect("equal")
+
+
+def render_3d(f: Fields, fig: plt.Figure) -> None:
+    pts = f.points
+    bottom = np.flatnonzero(np.abs(pts[:, 2] - pts[:, 2].min()) < 1e-6 * np.ptp(pts[:, 2]))
+    face = Triangulation(1e3 * pts[bottom, 0], 1e3 * pts[bottom, 1])
+    cut = plane(f, 1, 0.0)
+    axes = fig.subplots(2, 2)
+    for row, (name, unit) in enumerate(PANELS):
+        values = f.field(name)
+        contour(axes[row, 0], face, values[bottom], f"{name} [{unit}]")
+        axes[row, 0].set(title=f"{name} on the bottom face", xlabel="x [mm]", ylabel="y [mm]", aspect="equal")
+        contour(axes[row, 1], Triangulation(1e3 * cut.coords[:, 0], 1e3 * cut.coords[:, 1], cut.triangles),
+                cut.of(values), f"{name} [{unit}]")
+        axes[row, 1].set(title=f"{name} on the section y = 0", xlabel="x [mm]", ylabel="z [mm]")
+
+
+def render(run: Path, target: Path) -> None:
+    f = read_fields(run / "solution.vtu")
+    fig = plt.figure(figsize=(11, 7.5), constrained_layout=True)
+    (render_3d if f.tetrahedra is not None else render_2d)(f, fig)
+    fig.suptitle(f"{run.parent.name}, {run.name}: {len(f.points):,} nodes")
+    fig.savefig(target, dpi=100)
+    plt.close(fig)
+
+
+if __name__ == "__main__":
+    if len(sys.argv) not in (2, 3):
+        sys.stderr.write("error: usage: python -m harness.device_plot RUN_DIR [PICTURE.png]\n")
+        raise SystemExit(2)
+    run = Path(sys.argv[1])
+    out = Path(sys.argv[2]) if len(sys.argv) > 2 else run.parent / "fields.png"
+    try:
+        render(run, out)
+    except Exception as exc:  # noqa: BLE001  (one line, never a traceback)
+        sys.stderr.write(f"error: {run}: {exc}\n")
+        raise SystemExit(3) from None
+    print(f"wrote {out}")
