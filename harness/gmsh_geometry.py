@@ -40,7 +40,6 @@ class GmshGeometry:
     contact: tuple[tuple[tuple[float, ...], ...], ...] = ()  # Gamma_3's facets (d points of d coordinates)
     # The coarsest mesh's vertices, edges, (3D: faces,) cells: the guards' node counts.
     coarsest_counts: tuple[int, ...] = ()
-    diagonals: str = "gmsh"         # read by code that asks a rectangle how it was cut
 
     @property
     def role_of_name(self) -> dict[str, str]:
@@ -198,8 +197,11 @@ def simplex_counts(dimension: int) -> tuple[int, ...]:
     cells = []
     for _, entity in gmsh.model.getEntities(dimension):
         for kind, _, nodes in zip(*gmsh.model.mesh.getElements(dimension, entity)):
-            per = gmsh.model.mesh.getElementProperties(int(kind))[3]
-            cells.append(np.asarray(nodes, dtype=np.int64).reshape(-1, per)[:, :dimension + 1])
+            name, _, order, per = gmsh.model.mesh.getElementProperties(int(kind))[:4]
+            if per != dimension + 1 or order != 1:
+                raise SceneError(f"gmsh makes {name} elements; only first-order triangles (2D) and tetrahedra (3D) "
+                                 "are solved (no Recombine, Mesh.ElementOrder = 1)")
+            cells.append(np.asarray(nodes, dtype=np.int64).reshape(-1, per))
     if not cells:
         raise SceneError(f"gmsh made no {dimension}D elements")
     cells = np.vstack(cells)

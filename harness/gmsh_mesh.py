@@ -86,6 +86,9 @@ def generate(geometry: GmshGeometry, n: int) -> SimplexMesh:
         except Exception as exc:  # gmsh raises a bare Exception carrying its log line
             raise MeshError(f"gmsh failed on {geometry.file.name} at n={n}: {exc}") from None
     index, points = used_points(points, cells)
+    if geometry.levels == "remesh" and n > geometry.coarsest and len(points) <= geometry.coarsest_counts[0]:
+        raise MeshError(f"n={n}: gmsh made no more nodes than at the coarsest level {geometry.coarsest}: the file fixes "
+                        "its mesh (Transfinite counts?), so remesh cannot refine it; use levels = \"split\"")
     cells = index[cells]
     cells = oriented(points, cells, entity_of_cell, n)
     facets, labels = labelled_boundary(points, cells, {tuple(sorted(index[list(f)])): r for f, r in named.items()}, n)

@@ -50,7 +50,9 @@ def coarser_meshes(geometry: Geometry | Box | GmshGeometry, n: int, count: int, 
                    make: bool = True) -> list[Path]:
     """The meshes of `coarser_levels(n, count, coarsest)`, finest first; made (or refreshed)
     only with `make`: a run's cache key needs their names, not their files (2D n = 512's four
-    coarser meshes take 9 s)."""
+    coarser meshes take 9 s). A split gmsh scene's family starts at its own coarsest level."""
+    if isinstance(geometry, GmshGeometry) and geometry.levels == "split":
+        coarsest = max(coarsest, geometry.coarsest)
     levels = coarser_levels(n, count, coarsest)
     if not make:
         return [mesh_path(directory, m) for m in levels]

@@ -178,6 +178,10 @@ BAD = {
                                  "is in no named part"),
     "a rotated poling axis": ({'coarsest_guess = "zero"': 'coarsest_guess = "zero"\npoling_axis = "x"'}, None,
                               "only the default axis is supported"),
+    "remesh of a file that fixes its mesh": ({'levels = "split"': 'levels = "remesh"'}, None,
+                                             "so remesh cannot refine it"),
+    "quadrilaterals": (None, {"Transfinite Curve{7:10}": "Recombine Surface{1:3};\nTransfinite Curve{7:10}"},
+                       "only first-order triangles (2D) and tetrahedra (3D) are solved"),
     "a split level off the coarsest's powers of 2": ({"coarsest = 2": "coarsest = 3"}, None,
                                                      "must be the coarsest level 3 times a power of 2"),
 }
