@@ -151,3 +151,32 @@ def test_the_check_rejects_a_missing_role(paper_case, paper_meshes, tmp_path):
     bad = rewrite(paper_meshes["SW-NE"][2], tmp_path / "bad.msh", relabel_contact_as_free)
     with pytest.raises(MeshError, match="role free .* has length 6.0, expected 4.0"):
         check_mesh(bad, load_scene(paper_case).geometry, 2)
+
+
+@pytest.mark.parametrize("case", ["paper.toml", "hard/unstructured.toml", "longcontact.toml"])
+def test_our_msh_writer_gives_gmsh_own_bytes(case, tmp_path):
+    """write_rectangle_msh replaces gmsh.write (which needed gmsh's per-node setNode to move
+    the nodes): on a level gmsh meshed and left where it is, both files are the same bytes,
+    so FreeFEM reads the same mesh, node for node, as before."""
+    import gmsh
+
+    from harness import mesh, signals
+
+    geometry = load_scene(Path(__file__).resolve().parents[1] / "cases" / case).geometry
+    n = 8
+    cells = {} if geometry.diagonals == "unstructured" else mesh.grid_cells(geometry, n)
+    gmsh.initialize(readConfigFiles=False, interruptible=False)
+    signals.reassert()
+    try:
+        gmsh.option.setNumber("General.Terminal", 0)
+        gmsh.model.add("scene")
+        mesh.add_strips(geometry, cells, size=0.0 if cells else 1.0 / n)
+        gmsh.model.mesh.generate(2)
+        level, _ = mesh.read_rectangle()
+        gmsh.option.setNumber("Mesh.MshFileVersion", 2.2)
+        gmsh.write(str(tmp_path / "gmsh.msh"))
+    finally:
+        gmsh.finalize()
+        signals.reassert()
+    mesh.write_rectangle_msh(level, tmp_path / "ours.msh")
+    assert (tmp_path / "ours.msh").read_bytes() == (tmp_path / "gmsh.msh").read_bytes()

@@ -231,17 +231,18 @@ def test_a_full_disk_while_freefem_writes_its_outputs(capsys, tmp_path, size):
 
 
 def test_a_full_disk_while_meshing_monkeypatched(capsys, tmp_path, monkeypatch):
-    """The same without root: gmsh leaves a truncated file (as it does on a full disk, without
-    a word) and the disk reports no space left."""
+    """The same without root: the mesh writer gets half its file out, then ENOSPC (as a
+    write on a full disk does), and the disk reports no space left."""
     from harness import faults, mesh
 
-    real = mesh.write_with_gmsh
+    real = mesh.write_rectangle_msh
 
-    def truncated(geometry, cells, n, target):
-        real(geometry, cells, n, target)
+    def truncated(level, target):
+        real(level, target)
         target.write_bytes(target.read_bytes()[: len(target.read_bytes()) // 2])
+        raise OSError(errno.ENOSPC, os.strerror(errno.ENOSPC), str(target))
 
-    monkeypatch.setattr(mesh, "write_with_gmsh", truncated)
+    monkeypatch.setattr(mesh, "write_rectangle_msh", truncated)
     monkeypatch.setattr(faults, "FULL_DISK_BYTES", shutil.disk_usage(tmp_path).free * 2)
     code, err, _ = run(capsys, tmp_path / "results", "solve", str(STUB_CASE), "--n", "4")
     assert code == 4
