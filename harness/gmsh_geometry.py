@@ -29,6 +29,10 @@ LEVEL_KINDS = ("split", "remesh")
 ROLLERS = ("roller_x", "roller_y", "roller_z")
 
 
+# Triangle area [m^2] below which a 2D level is read by freefem/dimension.idp's own reader:
+# 100 times gmshload's absolute threshold 1e-8, for remeshed levels that do not scale exactly.
+SMALL_CELL = 1e-6
+
 @dataclass(frozen=True)
 class GmshGeometry:
     file: Path                      # absolute
@@ -40,6 +44,7 @@ class GmshGeometry:
     contact: tuple[tuple[tuple[float, ...], ...], ...] = ()  # Gamma_3's facets (d points of d coordinates)
     # The coarsest mesh's vertices, edges, (3D: faces,) cells: the guards' node counts.
     coarsest_counts: tuple[int, ...] = ()
+    coarsest_min_cell: float = math.inf  # its smallest triangle's area (2D) [m^2]
 
     @property
     def role_of_name(self) -> dict[str, str]:
@@ -61,6 +66,13 @@ class GmshGeometry:
                 counts = [v + e, 2 * e + 3 * f + t, 4 * f + 8 * t, 8 * t]
             level *= 2
         return math.ceil(counts[0] * (n / level) ** self.dimension)
+
+    def small_cells(self, n: int) -> bool:
+        """Whether level n may hold a triangle below SMALL_CELL: FreeFEM's gmshload refuses
+        one under 1e-8 (freefem/dimension.idp), so its runs read meshes with the script's own
+        reader (-mesh.small_cells). A split divides areas by 4 exactly; a remesh about as much,
+        hence the margin of SMALL_CELL over 1e-8."""
+        return self.dimension == 2 and self.coarsest_min_cell * (self.coarsest / n) ** 2 < SMALL_CELL
 
     # The bounding box: what a study that asks for a scene's extent gets.
     @property
@@ -141,7 +153,8 @@ def parse_gmsh(table: dict[str, Any], case_dir: Path, levels: list[int], effects
         raise SceneError("geometry.roles: the contact part is empty (no name maps to role contact) but effect "
                          "'contact' is on")
     coarsest = table["coarsest"] or min(levels)
-    found, bounds, contact, counts = read_geo(file, dimension, coarsest, [n for n, r in roles.items() if r == "contact"])
+    found, bounds, contact, counts, smallest = read_geo(file, dimension, coarsest,
+                                                        [n for n, r in roles.items() if r == "contact"])
     facet = "curve" if dimension == 2 else "surface"
     for name in found:
         if name not in roles:
@@ -153,14 +166,15 @@ def parse_gmsh(table: dict[str, Any], case_dir: Path, levels: list[int], effects
     if "contact" in used and not contact:
         raise SceneError(f"{file.name}: the contact part is empty (no {facet} in it)")
     return GmshGeometry(file=file, dimension=dimension, roles=tuple(roles.items()), levels=table["levels"],
-                        coarsest=coarsest, bounds=bounds, contact=contact, coarsest_counts=counts)
+                        coarsest=coarsest, bounds=bounds, contact=contact, coarsest_counts=counts,
+                        coarsest_min_cell=smallest)
 
 
 def read_geo(file: Path, dimension: int, coarsest: int, contact_names: list[str]) -> tuple[
-        dict[str, list[int]], tuple[float, ...], tuple[tuple[tuple[float, ...], ...], ...], tuple[int, ...]]:
+        dict[str, list[int]], tuple[float, ...], tuple[tuple[tuple[float, ...], ...], ...], tuple[int, ...], float]:
     """The names of the file's physical groups of dimension d - 1 (with their entities),
-    its bounding box, the contact entities' facets and the coarsest level's mesh's counts
-    of vertices, edges, (faces,) cells (h = 1/coarsest)."""
+    its bounding box, the contact entities' facets, the coarsest level's mesh's counts
+    of vertices, edges, (faces,) cells (h = 1/coarsest) and (2D) its smallest triangle's area."""
     with session():
         try:
             gmsh.open(str(file))
@@ -188,8 +202,20 @@ def read_geo(file: Path, dimension: int, coarsest: int, contact_names: list[str]
         except Exception as exc:
             raise SceneError(f"gmsh cannot mesh {file.name} at h = 1/{coarsest}: {exc}") from None
         counts = simplex_counts(dimension)
+        smallest = smallest_triangle() if dimension == 2 else math.inf
         contact = contact_facets(dimension, entities) if entities else ()
-    return found, bounds, contact, counts
+    return found, bounds, contact, counts, smallest
+
+
+def smallest_triangle() -> float:
+    """The smallest area among the triangles of gmsh's current 2D mesh."""
+    tags, coords, _ = gmsh.model.mesh.getNodes()
+    points = np.zeros((int(tags.max()) + 1, 3))
+    points[tags.astype(np.int64)] = coords.reshape(-1, 3)
+    _, nodes = gmsh.model.mesh.getElementsByType(2)  # 3-node triangles
+    a, b, c = (points[np.asarray(nodes, dtype=np.int64).reshape(-1, 3)[:, k], :2] for k in range(3))
+    u, v = b - a, c - a
+    return float(np.abs(u[:, 0] * v[:, 1] - u[:, 1] * v[:, 0]).min() / 2)
 
 
 def simplex_counts(dimension: int) -> tuple[int, ...]:

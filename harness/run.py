@@ -16,6 +16,7 @@ from harness.atomic import write_atomic
 from harness.contract import Failure
 from harness.cache import cached_record, run_inputs, sha256_file, write_checksums
 from harness.errors import EnvironmentFault, RunError, SceneError
+from harness.gmsh_geometry import GmshGeometry
 from harness.faults import disk_full, space_for
 from harness.signals import CHILDREN, Interrupted
 from harness.layout import Layout
@@ -261,6 +262,8 @@ def solver_inputs(
         for coarse in coarser_meshes(scene.geometry, n, scene.multigrid_levels, scene.sections.run.multigrid_coarsest,
                                      mesh.resolve().parent, make_meshes):
             options += ["-mg.mesh", str(coarse)]
+    if isinstance(scene.geometry, GmshGeometry) and scene.geometry.small_cells(n):
+        options += ["-mesh.small_cells", "1"]
     if parallel:
         options += ["-parallel.krylov_rtol", repr(scene.sections.run.krylov_rtol)]
     if parallel and scene.coarse_levels:
