@@ -19,7 +19,6 @@ from dataclasses import dataclass
 from pathlib import Path
 from typing import Callable
 
-import meshio
 import numpy as np
 
 from harness.contract import ROLE_LABELS
@@ -114,6 +113,7 @@ def write_msh(mesh: BoxMesh, path: Path) -> None:
     body = np.full(len(mesh.tetrahedra), BODY_LABEL)
     cells = [("triangle", mesh.triangles), ("tetra", mesh.tetrahedra)]
     data = {"gmsh:physical": [mesh.labels, body], "gmsh:geometrical": [mesh.labels, body]}
+    import meshio  # here, not at start-up: its import (95 ms, its CLI pulls in rich) would delay FreeFEM's start (freefem.launch warms it)
     meshio.write(path, meshio.Mesh(mesh.points, cells, cell_data=data), file_format="gmsh22", binary=False)
 
 

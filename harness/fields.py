@@ -5,7 +5,6 @@ from __future__ import annotations
 from dataclasses import dataclass
 from pathlib import Path
 
-import meshio
 import numpy as np
 
 from harness.errors import FieldsError
@@ -33,6 +32,7 @@ class Fields:
 def read_fields(path: Path) -> Fields:
     if not path.is_file():
         raise FieldsError(f"solution file not found: {path}")
+    import meshio  # here, not at start-up: its import (95 ms, its CLI pulls in rich) would delay FreeFEM's start (freefem.launch warms it)
     try:
         mesh = meshio.read(path)
     except Exception as exc:  # meshio raises several unrelated types for a broken file

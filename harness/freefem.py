@@ -4,12 +4,14 @@ from __future__ import annotations
 
 import contextlib
 import functools
+import importlib
 import math
 import os
 import re
 import shutil
 import signal
 import subprocess
+import sys
 import tempfile
 import threading
 import time
@@ -107,6 +109,13 @@ def with_parent_death_signal(argv: list[str]) -> list[str]:
     return [setpriv, "--pdeathsig", "KILL", *argv]
 
 
+def warm_import(module: str) -> None:
+    """Import `module` in a thread while FreeFEM runs: what is read after the run (meshio for
+    solution.vtu) is then loaded off the critical path of a whole `solve` process."""
+    if module not in sys.modules:
+        threading.Thread(target=importlib.import_module, args=(module,), daemon=True).start()
+
+
 def launch(argv: list[str], cwd: Path, waits_on_stdin: bool = False, env: dict[str, str] | None = None) -> Launched:
     """Start FreeFEM in `cwd`, its own process group; stdin is a pipe when it will wait for a
     line (Launched.resume), else empty."""
@@ -119,6 +128,7 @@ def launch(argv: list[str], cwd: Path, waits_on_stdin: bool = False, env: dict[s
     except FileNotFoundError:
         raise EnvironmentFault(f"{argv[0]} not found on PATH (`make test` or `make convergence` installs it)") from None
     CHILDREN.add_group(proc.pid)  # its own session: a signal to the harness does not reach it
+    warm_import("meshio")
     launched = Launched(proc, time.perf_counter())
     if CHILDREN.signum is not None:  # a worker thread launching after the signal: end it at once
         launched.abandon()

@@ -24,7 +24,6 @@ from dataclasses import dataclass
 from pathlib import Path
 
 import gmsh
-import meshio
 import numpy as np
 
 from harness.contract import ROLE_LABELS
@@ -295,6 +294,7 @@ def write_msh(mesh: SimplexMesh, path: Path) -> None:
     body = np.full(len(mesh.cells), BODY_LABEL)
     cells = [(MESHIO_TYPE[d - 1], mesh.facets), (MESHIO_TYPE[d], mesh.cells)]
     data = {"gmsh:physical": [mesh.labels, body], "gmsh:geometrical": [mesh.labels, body]}
+    import meshio  # here, not at start-up: its import (95 ms, its CLI pulls in rich) would delay FreeFEM's start (freefem.launch warms it)
     meshio.write(path, meshio.Mesh(points, cells, cell_data=data), file_format="gmsh22", binary=False)
 
 

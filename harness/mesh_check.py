@@ -4,9 +4,12 @@ from __future__ import annotations
 
 from dataclasses import dataclass, field, replace
 from pathlib import Path
+from typing import TYPE_CHECKING
 
-import meshio
 import numpy as np
+
+if TYPE_CHECKING:
+    import meshio
 
 from harness.errors import MeshError
 from harness.schema import ROLE_LABELS
@@ -26,6 +29,7 @@ class MeshSummary:
 
 def check_mesh(path: Path, geometry: Geometry, n: int) -> MeshSummary:
     """check_arrays on a written file."""
+    import meshio  # here, not at start-up: its import (95 ms, its CLI pulls in rich) would delay FreeFEM's start (freefem.launch warms it)
     mesh = meshio.read(path, file_format="gmsh")
     lines = cells_of(mesh, "line")
     tags = np.concatenate(
