@@ -27,6 +27,8 @@ def written(path) -> tuple[set[str], set[str]]:
 
 def test_every_key_output_idp_writes_is_declared():
     top, checks = written(FREEFEM / "output.idp")
+    history, _ = written(FREEFEM / "json.idp")  # the Newton history, shared with parallel.json
+    top |= history
     reference, _ = written(FREEFEM / "reference_error.idp")
     assert {"n", "converged", "checks", "max_abs_u", "mms_errors"} <= top  # the parse finds them
     assert {"reference_errors", "reference_s"} <= reference
