@@ -12,6 +12,7 @@ import importlib
 import sys
 from typing import Sequence
 
+from harness import freefem
 from harness.arguments import Parser
 from harness.contract import ExitCode
 from harness.faults import guarded, report
@@ -54,6 +55,7 @@ def plugin(name: str):  # noqa: ANN201 (a module)
 def main(argv: Sequence[str] | None = None) -> int:
     argv = list(sys.argv[1:] if argv is None else argv)
     chosen = next((a for a in argv if not a.startswith("-")), None)
+    freefem.version_query(freefem.BINARY)  # asked while the plug-in is imported
     try:  # the plug-in's imports are the rest of the start-up
         args = parser(chosen if chosen in STUDIES else None).parse_args(argv)
     except KeyboardInterrupt as exc:

@@ -188,6 +188,7 @@ def _independent(
     """Every level from the case's own start, `jobs` at a time, largest first (the finest
     level dominates the wall time). Every level runs; failures are outcomes."""
     outcomes: dict[int, LevelOutcome] = {}
+    freefem.warm_import("meshio")  # read after each run (solution.vtu)
     with ThreadPoolExecutor(max_workers=max(1, jobs)) as pool:
         # The mesh is looked up in the worker, which waits for it there.
         futures = {pool.submit(_attempt, scene, meshes, n, layout, force): n
@@ -247,6 +248,8 @@ def _chain(
                 if early and finest is None and count < len(levels) - 1 and _mesh_ready(meshes, top):
                     finest = _launched_early(scene, meshes, top, levels[-2], layout, force)
                     early = finest is not None
+                if count == len(levels):
+                    freefem.warm_import("meshio")  # read after the run (solution.vtu)
                 ahead: HarnessError | None = None
                 if count < len(levels):
                     try:

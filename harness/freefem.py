@@ -15,6 +15,7 @@ import sys
 import tempfile
 import threading
 import time
+from concurrent.futures import Future
 from dataclasses import dataclass
 from pathlib import Path
 from typing import Any
@@ -111,7 +112,9 @@ def with_parent_death_signal(argv: list[str]) -> list[str]:
 
 def warm_import(module: str) -> None:
     """Import `module` in a thread while FreeFEM runs: what is read after the run (meshio for
-    solution.vtu) is then loaded off the critical path of a whole `solve` process."""
+    solution.vtu) is then loaded off the critical path of a whole `solve` process. Called
+    when a core is free (the last level of a chain runs), not while the chain below it and
+    the finest level's setup hold both cores."""
     if module not in sys.modules:
         threading.Thread(target=importlib.import_module, args=(module,), daemon=True).start()
 
@@ -128,7 +131,6 @@ def launch(argv: list[str], cwd: Path, waits_on_stdin: bool = False, env: dict[s
     except FileNotFoundError:
         raise EnvironmentFault(f"{argv[0]} not found on PATH (`make test` or `make convergence` installs it)") from None
     CHILDREN.add_group(proc.pid)  # its own session: a signal to the harness does not reach it
-    warm_import("meshio")
     launched = Launched(proc, time.perf_counter())
     if CHILDREN.signum is not None:  # a worker thread launching after the signal: end it at once
         launched.abandon()
@@ -208,13 +210,40 @@ def failure_reason(outcome: Outcome, timeout_s: float, detail: str, pressed: boo
 
 
 @functools.cache
+def version_query(binary: str) -> Future[str]:
+    """FreeFEM's own `version`, asked once per process in a thread from the first call:
+    `cli.main` calls this before the study's imports, so the query (a FreeFEM start-up,
+    30-60 ms) is off the critical path of a `solve`. Not a daemon thread: the interpreter
+    joins it at exit, so its temp dir is always removed."""
+    answer: Future[str] = Future()
+
+    def ask() -> None:
+        try:
+            answer.set_result(_ask_version(binary))
+        except BaseException as exc:  # noqa: BLE001 (handed to whoever reads the answer)
+            answer.set_exception(exc)
+
+    threading.Thread(target=ask, name="freefem-version").start()
+    return answer
+
+
+@functools.cache
 def freefem_version() -> str:
-    """FreeFEM's own `version` (asked once per process; it is part of every cache key)."""
+    """FreeFEM's own `version` (part of every cache key)."""
+    try:
+        return version_query(BINARY).result()
+    except RunError:
+        # Killed with the runs of an earlier command of this process (signals.handled ends
+        # every child on an error), before it answered: asked again, here.
+        return _ask_version(BINARY)
+
+
+def _ask_version(binary: str) -> str:
     with tempfile.TemporaryDirectory(prefix="ff-version-") as tmp:
         script = Path(tmp) / "version.edp"
         script.write_text("cout << version << endl;\n")
-        outcome = invoke(command(script, []), Path(tmp), timeout_s=60)
+        outcome = invoke([binary, *command(script, [])[1:]], Path(tmp), timeout_s=60)
         text = (Path(tmp) / "stdout.txt").read_text().strip()
     if outcome.returncode != 0 or not text:
-        raise RunError(f"{BINARY} does not run (asked for its version, exit code {outcome.returncode})")
+        raise RunError(f"{binary} does not run (asked for its version, exit code {outcome.returncode})")
     return text.splitlines()[0]

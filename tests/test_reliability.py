@@ -578,3 +578,55 @@ def test_the_memory_guard_counts_per_solver():
     with pytest.raises(guards.EnvironmentFault, match="n=64 would need about"):
         guards.check_memory(4.0, 1.0, (32, 64), effects, available=24 * 2**30, depth=1.0, factorises=False,
                             multigrid=True)
+
+
+def test_an_error_before_freefem_answers_its_version_leaves_no_temp_dir_or_process(tmp_path):
+    """FreeFEM's version is asked in a thread from the start (harness/freefem.py, issue 23's
+    overhead): an input error found before it answers still ends with one line and exit 2,
+    and the query's temp dir and FreeFEM are gone (the interpreter joins that thread). A
+    FreeFEM that takes a second to answer makes sure the error comes first."""
+    tmp, bin_dir = tmp_path / "tmp", tmp_path / "bin"
+    tmp.mkdir()
+    bin_dir.mkdir()
+    slow = bin_dir / "FreeFem++"
+    slow.write_text("#!/bin/sh\nsleep 1\necho 4.9\n")
+    slow.chmod(0o755)
+    env = {**os.environ, "TMPDIR": str(tmp), "PATH": f"{bin_dir}:{os.environ['PATH']}"}
+    done = subprocess.run([sys.executable, "-m", "harness", "solve", str(tmp_path / "missing.toml"), "--n", "4",
+                           "--results", str(tmp_path / "results")], cwd=REPO, capture_output=True, text=True,
+                          env=env, timeout=60)
+    assert done.returncode == 2
+    one_error(done.stderr.strip().splitlines(), "missing.toml")
+    assert list(tmp.iterdir()) == []
+    in_tmp = []
+    for cwd in Path("/proc").glob("[0-9]*/cwd"):
+        with contextlib.suppress(OSError):
+            if Path(os.readlink(cwd)).is_relative_to(tmp):
+                in_tmp.append(cwd.parent.name)
+    assert not in_tmp
+
+
+def test_a_version_query_killed_with_an_earlier_command_is_asked_again(tmp_path, monkeypatch):
+    """An error ends every child of the command (signals.handled), the version query too when
+    it has not answered yet; a later command in the same process (the tests, a notebook) asks
+    again instead of keeping that failure."""
+    from harness import freefem
+    from harness.errors import RunError
+    from harness.signals import CHILDREN
+
+    marker = tmp_path / "asked"
+    slow = tmp_path / "FreeFem++"
+    slow.write_text(f"#!/bin/sh\nif [ -e {marker} ]; then echo 4.9; else touch {marker}; sleep 30; fi\n")
+    slow.chmod(0o755)
+    monkeypatch.setattr(freefem, "BINARY", str(slow))
+    freefem.version_query.cache_clear()
+    freefem.freefem_version.cache_clear()
+    try:
+        answer = freefem.version_query(str(slow))
+        wait_for(marker.exists, timeout=10)
+        CHILDREN.kill_all()
+        assert isinstance(answer.exception(timeout=10), RunError)
+        assert freefem.freefem_version() == "4.9"
+    finally:
+        freefem.version_query.cache_clear()
+        freefem.freefem_version.cache_clear()
