@@ -1,4 +1,4 @@
-"""The solution branches of the paper's scene (issue 4), the library of `make branches`
+"""The solution branches of a scene, the paper's by default (issue 4), the library of `make branches`
 (harness/studies/branches.py): each start a convergence study, its finest level's
 quantities, slopes and physical checks in one row, and which starts reached the same
 solution."""
@@ -6,6 +6,7 @@ solution."""
 from __future__ import annotations
 
 import math
+from pathlib import Path
 from typing import Any, Sequence
 
 from harness.errors import RunError
@@ -29,12 +30,15 @@ FACTS = ("max_theta", "min_phi", "max_phi", "max_abs_u", "contact_force", "heat_
          "charge_in_contact", "active_measure")
 
 
-def start_scene(start: str) -> Scene:
-    return load_scene(PAPER, [f"scene.name={start}", *STARTS[start]])
+def start_scene(start: str, case: Path = PAPER, overrides: Sequence[str] = ()) -> Scene:
+    """The case (the paper's scene unless told) from `start`: the case's own overrides first,
+    the start's last, and the start as the scene's name (its results folder)."""
+    return load_scene(case, [*overrides, f"scene.name={start}", *STARTS[start]])
 
 
-def branch_row(start: str, levels: Sequence[int], layout: Layout, jobs: int, force: bool) -> dict[str, Any]:
-    scene = start_scene(start)
+def branch_row(start: str, levels: Sequence[int], layout: Layout, jobs: int, force: bool,
+               case: Path = PAPER, overrides: Sequence[str] = ()) -> dict[str, Any]:
+    scene = start_scene(start, case, overrides)
     row: dict[str, Any] = {"start": start, "initial_guess": scene.initial_guess,
                            "coarsest_guess": scene.sections.scene.coarsest_guess}
     try:

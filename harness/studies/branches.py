@@ -1,9 +1,10 @@
-"""`python -m harness branches` (`make branches`): the solution branches of the paper's scene
-(issue 4), into results/branches/.
+"""`python -m harness branches [CASE]` (`make branches`): the solution branches of the paper's
+scene (issue 4), into results/branches/; of any other case (a gmsh scene, say) into
+results/branches_<case>/.
 
 The benchmark's data break the paper's uniqueness condition, and Newton reaches different
-solutions from different starts. Each start below is a convergence study of
-cases/paper.toml (levels 2 ... 64):
+solutions from different starts. Each start below is a convergence study of the case
+(cases/paper.toml unless told; levels 2 ... 64):
 
 - zero:            the coarsest level from zero, each finer one from the coarser solution
                    (the case file as it is: what `make convergence` shows);
@@ -26,12 +27,13 @@ failed a physical check.
 from __future__ import annotations
 
 import argparse
+from pathlib import Path
 from typing import Any
 
 import pandas as pd
 
-from harness.arguments import add_cluster, add_common, add_jobs, add_levels, layout_of, name_list
-from harness.branch_starts import LEVELS, STARTS, branch_row, same_branch, start_scene
+from harness.arguments import add_case, add_cluster, add_common, add_jobs, add_levels, layout_of, name_list
+from harness.branch_starts import LEVELS, PAPER, STARTS, branch_row, same_branch, start_scene
 from harness.errors import SceneError
 from harness.executor import cluster, each
 from harness.layout import REPO
@@ -62,25 +64,36 @@ def markdown(table: pd.DataFrame) -> str:
 
 
 def add_arguments(parser: argparse.ArgumentParser) -> None:
+    add_case(parser, optional=True)
     add_levels(parser, default=LEVELS, what="2,...,64; the finest the reference")
     parser.add_argument("--starts", type=name_list, default=list(STARTS), help=f"starts to run ({', '.join(STARTS)})")
     add_jobs(parser, default=2)
-    add_common(parser, results=RESULTS)
+    add_common(parser)
+    # Decided once the case is known (results_for): the paper's table is not another case's.
+    parser.set_defaults(results=None)
     add_cluster(parser)
 
 
+def results_for(case: Path) -> Path:
+    """results/branches/ for the paper's scene, results/branches_<case>/ for any other."""
+    return RESULTS if case.resolve() == PAPER.resolve() else RESULTS.with_name(f"branches_{case.stem}")
+
+
 def run(args: argparse.Namespace) -> int:
+    args.results = args.results or results_for(args.case)
     layout = layout_of(args)
     unknown = [s for s in args.starts if s not in STARTS]
     if unknown:
         raise SceneError(f"unknown start {unknown[0]!r} (known: {', '.join(STARTS)})")
-    plan = Plan(args.results, tuple(Guarded(start_scene(start), tuple(args.levels)) for start in args.starts),
+    scenes = tuple(Guarded(start_scene(start, args.case, args.overrides), tuple(args.levels)) for start in args.starts)
+    plan = Plan(args.results, scenes,
                 scene_dirs=tuple(layout.case_dir(start) for start in args.starts), outputs=(args.results,),
                 nested=True, ignore_memory=args.ignore_memory)
 
     def runs() -> list[dict[str, Any]]:
         with cluster(args.scheduler, args.cluster) as pool:  # each start's study a task on a Dask cluster
-            return each(pool, lambda start: branch_row(start, args.levels, layout, args.jobs, args.force), args.starts)
+            return each(pool, lambda start: branch_row(start, args.levels, layout, args.jobs, args.force,
+                                                       args.case, args.overrides), args.starts)
 
     def report(rows: list[dict[str, Any]]) -> None:
         labels = same_branch(rows)
