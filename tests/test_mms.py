@@ -188,7 +188,7 @@ def manufactured_scene(case: str, exact: dict[str, str]):
                       + [f'scene.name="mms_{case}_linear"'])
 
 
-@pytest.mark.parametrize("case", ["bulk", "contact"])
+@pytest.mark.parametrize("case", ["bulk", "contact", "wedge"])  # wedge: tilted normal, unstructured mesh
 def test_a_solution_in_the_p1_space_is_reproduced_to_round_off(tmp_path, case):
     """Known answer: linear exact fields are P1 functions, and (quadrature exact for the
     linear-times-linear boundary terms, contact terms evaluated at the same state) the

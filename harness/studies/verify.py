@@ -37,7 +37,7 @@ def write_csv(table: pd.DataFrame, path: Path) -> None:
 def add_arguments(parser: argparse.ArgumentParser) -> None:
     add_levels(parser, default=MMS_LEVELS, what="4,8,16,32; the manufactured cases'")
     parser.add_argument("--cases", type=name_list, default=[*MMS_CASES, *MMS_CASES_3D],
-                        help="manufactured cases to run (bulk, contact, coulomb, bulk3d, contact3d; empty: none)")
+                        help="manufactured cases to run (bulk, contact, coulomb, wedge, bulk3d, contact3d; empty: none)")
     parser.add_argument("--paper", type=Path, default=REPO / "cases" / "paper.toml", help="scene of the GCI table")
     parser.add_argument("--skip-gci", action="store_true", help="manufactured solutions only")
     add_jobs(parser, default=2)
