@@ -1,9 +1,17 @@
-import gc
+import signal
 import sys
 
-from harness.signals import install
+# First, before any import that takes time: SIGINT, SIGTERM and SIGHUP (signals.HANDLED) are
+# held back until the command runs (faults.guarded lets them in), so a signal during start-up
+# ends with one line and 130, never a traceback from inside an import or a thread's start.
+# Not in Dask's spawned workers, which import this module again and never reach that point.
+if __name__ == "__main__":
+    signal.pthread_sigmask(signal.SIG_BLOCK, (signal.SIGINT, signal.SIGTERM, signal.SIGHUP))
 
-# Before the heavy imports: a signal during start-up ends with one line and 130, no traceback.
+import gc  # noqa: E402
+
+from harness.signals import install  # noqa: E402
+
 install()
 try:
     from harness.cli import main

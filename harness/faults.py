@@ -116,6 +116,10 @@ def guarded(body: Callable[[], int], where: str = "") -> int:
     and at most one `error:` line on stderr, never a traceback."""
     try:
         with signals.handled():
+            try:
+                signals.deliver()  # a signal held back during the start-up is handled here
+            except KeyboardInterrupt as exc:
+                return report(f"interrupted by {exc.args[0]} during start-up", ExitCode.INTERRUPTED)
             return int(body())
     except KeyboardInterrupt as exc:
         name = exc.args[0] if isinstance(exc, signals.Interrupted) else "SIGINT"

@@ -97,6 +97,16 @@ def _handler(signum: int, frame: FrameType | None) -> None:
     raise Interrupted(signum)
 
 
+def deliver() -> None:
+    """Let the handled signals in: `python -m harness` holds them back from its first line
+    (harness/__main__.py; raised inside an import or a thread's start, the handler's
+    KeyboardInterrupt left a traceback and exit 1 instead of one line and 130) until
+    `faults.guarded` calls this, where one that came meanwhile is handled. A no-op in any
+    other caller. The one thread started before (the FreeFEM version query) keeps the mask,
+    and so does its FreeFEM; SIGKILL, which `kill_all` sends, still ends it."""
+    signal.pthread_sigmask(signal.SIG_UNBLOCK, HANDLED)
+
+
 def install() -> None:
     """Handle SIGINT, SIGTERM and SIGHUP in this (main) thread from now on."""
     CHILDREN.signum = None
