@@ -23,23 +23,28 @@ def chain_levels(levels: Sequence[int]) -> tuple[int, ...]:
     return tuple(sorted({*(2 ** k for k in range(1, 12) if 2 ** k <= max(levels)), *levels}))
 
 
-def mpi_table(case: Path, levels: tuple[int, ...], ranks: Sequence[int], layout: Layout) -> pd.DataFrame:
-    """Each rank count's warm chain up to the finest level; one row per (level, ranks)."""
+def mpi_table(case: Path, levels: tuple[int, ...], ranks: Sequence[int], layout: Layout,
+              coarse_spaces: Sequence[str] = ("none",)) -> pd.DataFrame:
+    """Each configuration's warm chain up to the finest level: one rank, then each rank count
+    of `ranks` past the first with each Schwarz coarse space of `coarse_spaces`
+    (run.coarse_space); one row per (level, configuration), compared with the first."""
     chained = chain_levels(levels)
-    runs: dict[int, Any] = {}
-    for count in ranks:
+    configs = [(count, space) for count in ranks for space in (("none",) if count == 1 else coarse_spaces)]
+    runs: dict[tuple[int, str], Any] = {}
+    for count, space in configs:
         # Ranks factorise their subdomains (MUMPS_seq), whatever the case solves one rank with.
-        scene = load_scene(case, [f"scene.name=scale_{case.stem}_ranks{count}", f"run.ranks={count}",
-                                  'run.linear_solver="mumps"'])
+        name = f"scale_{case.stem}_ranks{count}" + ("" if space == "none" else f"_{space}")
+        scene = load_scene(case, [f"scene.name={name}", f"run.ranks={count}", 'run.linear_solver="mumps"',
+                                  f'run.coarse_space="{space}"'])
         with BackgroundMeshes(scene, chained, layout) as meshes:
-            runs[count] = runs_of(run_levels(scene, meshes, layout, force=True, progress=quiet,
-                                             chain=scene.initial_guess == "coarser"))
+            runs[count, space] = runs_of(run_levels(scene, meshes, layout, force=True, progress=quiet,
+                                                    chain=scene.initial_guess == "coarser"))
     rows = []
     for n in levels:
-        base = runs[ranks[0]][n]
+        base = runs[configs[0]][n]
         reference = read_state(base.directory / "state.txt")
-        for count in ranks:
-            run = runs[count][n]
+        for count, space in configs:
+            run = runs[count, space][n]
             record = run.record
             parallel = record.parallel or {}
             # Per field (state.txt holds them in the record's order): max |a - b| / max |a|.
@@ -48,7 +53,7 @@ def mpi_table(case: Path, levels: tuple[int, ...], ranks: Sequence[int], layout:
             per_rank = parallel.get("peak_rss_mb_per_rank", [record.peak_rss_mb])
             wall = parallel.get("wall", {})
             rows.append({
-                "n": n, "ranks": count, "dofs": record.dofs,
+                "n": n, "ranks": count, "coarse_space": space, "dofs": record.dofs,
                 "newton_iterations": record.newton_iterations,
                 "krylov_iterations": " ".join(str(k) for k in (record.linear_iterations or [])[1:]),
                 "factorisations": record.factorisations,

@@ -222,12 +222,12 @@ SCHEMA: dict[str, dict[str, Key]] = {
         # How ranks are started; {ranks} is replaced. On a SLURM cluster: "srun -n {ranks} FreeFem++-mpi".
         "launcher": Key(str, "ff-mpirun -np {ranks}"),
         # With run.ranks > 1: the Schwarz preconditioner's second level (freefem/coarse_space.idp).
-        # "nested": a coarse-grid correction on the mesh coarse_levels halvings of n below the
-        # level (the coarsest is n = 2), whose Krylov iterations stay bounded as the ranks grow
-        # (2D h = 1/64 to 1/256: 25-28 per Newton step); "none" (the default, as the committed
-        # rank tables were measured): one-level RAS, whose iterations grow with the ranks
-        # (docs/scale-out.md, results/solvers/ranks.csv).
-        "coarse_space": Key(str, "none", one_of("none", "nested")),
+        # "nested" (the default): a coarse-grid correction on the mesh coarse_levels halvings
+        # of n below the level (the coarsest is n = 2), whose Krylov iterations stay bounded as
+        # the ranks grow; on 2 ranks it took 3-5x fewer iterations than one level and was as
+        # fast or faster at every size of results/scale/ but 3D n = 8 (+3 %). "none": one-level
+        # RAS, whose iterations grow with the ranks (docs/scale-out.md).
+        "coarse_space": Key(str, "nested", one_of("none", "nested")),
         # 0: a coarse mesh with about 1/64 of the unknowns, 3 halvings in 2D and 2 in 3D
         # (measured against 2 and 3, 4, docs/scale-out.md).
         "coarse_levels": Key(int, 0, nonnegative),

@@ -414,3 +414,21 @@ def test_a_krylov_tolerance_below_the_round_off_floor_stops_at_the_floor(tmp_pat
     for name, a, b in zip(("u", "phi", "theta"), read_state(results / "one/n8/state.txt"),
                           read_state(results / "two/n8/state.txt")):
         assert np.abs(a - b).max() <= RTOL * np.abs(a).max(), name
+
+
+@pytest.mark.skipif(bool(mpi_missing()), reason=mpi_missing() or "-")
+def test_the_scale_table_times_two_ranks_with_and_without_the_coarse_space(tmp_path):
+    """`make scale` measures 2 ranks with the one-level Schwarz and with its coarse space
+    (run.coarse_space): the same solution as one rank to round-off either way, fewer Krylov
+    iterations with the second level (2D n = 16: 29 28 28 one-level, 18 16 16 nested)."""
+    from harness.layout import Layout
+    from harness.scale_out import mpi_table
+
+    table = mpi_table(CASES / "paper.toml", (16,), (1, 2), Layout(results=tmp_path), ("none", "nested"))
+    assert list(zip(table.ranks, table.coarse_space)) == [(1, "none"), (2, "none"), (2, "nested")]
+    one, plain, nested = (row for _, row in table.iterrows())
+    assert plain.max_rel_diff_vs_1_rank <= RTOL and nested.max_rel_diff_vs_1_rank <= RTOL
+    assert plain.newton_iterations == nested.newton_iterations == one.newton_iterations
+    its = [sum(map(int, row.krylov_iterations.split())) for row in (plain, nested)]
+    assert its[1] < 0.8 * its[0], its
+    assert "coarse correction" in nested.linear_solver and "coarse" not in plain.linear_solver

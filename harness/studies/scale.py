@@ -1,6 +1,7 @@
 """Past one machine, measured (`make scale`, `python -m harness scale`, into results/scale/):
-one solve of the paper scene, 2D and 3D, on 1 and on 2 MPI ranks (time, Krylov iterations,
-per-rank memory, agreement), and the stress suite in this process against local Dask
+one solve of the paper scene, 2D and 3D, on 1 and on 2 MPI ranks, the latter with the
+one-level Schwarz and with its coarse space (`run.coarse_space`: `--coarse-spaces`) (time,
+Krylov iterations, per-rank memory, agreement), and the stress suite in this process against local Dask
 clusters of 1 and 2 workers (each started and warmed before it is timed; median of several
 runs; identical summaries).
 
@@ -42,6 +43,9 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
     parser.add_argument("--clusters", type=lambda text: tuple(t.strip() for t in text.split(",") if t.strip()),
                         default=("local:1", "local:2"), help="the Dask clusters the stress suite is timed on")
     parser.add_argument("--stress-repeats", type=int, default=5, help="timed runs of the stress suite per executor")
+    parser.add_argument("--coarse-spaces", type=lambda text: tuple(t.strip() for t in text.split(",") if t.strip()),
+                        default=("none", "nested"),
+                        help="the Schwarz coarse spaces (run.coarse_space) each solve on 2 ranks is timed with")
     parser.add_argument("--results", type=Path, default=Layout().results, help="results root")
     add_memory_override(parser)
 
@@ -57,8 +61,9 @@ def run(args: argparse.Namespace) -> int:
     plan = Plan(args.results, tuple(guarded), outputs=(out,), ignore_memory=args.ignore_memory)
 
     def runs() -> tuple[pd.DataFrame, pd.DataFrame | None, pd.DataFrame]:
-        mpi = mpi_table(CASES / "paper.toml", args.mpi_levels, (1, 2), work)
-        mpi3d = mpi_table(CASES / "paper3d.toml", args.mpi_3d_levels, (1, 2), work) if args.mpi_3d_levels else None
+        mpi = mpi_table(CASES / "paper.toml", args.mpi_levels, (1, 2), work, args.coarse_spaces)
+        mpi3d = (mpi_table(CASES / "paper3d.toml", args.mpi_3d_levels, (1, 2), work, args.coarse_spaces)
+                 if args.mpi_3d_levels else None)
         return mpi, mpi3d, stress_table(args.stress_levels, args.clusters, args.stress_repeats, out / "runs" / "stress")
 
     def report(tables: tuple[pd.DataFrame, pd.DataFrame | None, pd.DataFrame]) -> None:
