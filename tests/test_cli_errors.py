@@ -159,3 +159,11 @@ def test_a_slope_outside_the_band_exits_1_saying_why(capsys, stub_layout, paper_
     assert "err_total" in out  # the table is printed all the same
     summary = json.loads((stub_layout.case_dir("paper") / "summary.json").read_text())
     assert summary["verdict"] == "fail"
+
+
+def test_an_unknown_coarse_space_for_make_scale_fails_before_any_run(capsys, tmp_path):
+    code = main(["scale", "--mpi-levels", "4", "--mpi-3d-levels", "", "--stress-levels", "2",
+                 "--clusters", "", "--coarse-spaces", "none,bogus", "--results", str(tmp_path)])
+    assert code == 2
+    one_error_line(capsys.readouterr().err.strip().splitlines(), "run.coarse_space = 'bogus'")
+    assert not (tmp_path / "scale").exists()

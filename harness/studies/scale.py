@@ -54,6 +54,8 @@ def run(args: argparse.Namespace) -> int:
     out = args.results / "scale"
     work = Layout(results=out / "runs")
     on_ranks = ['run.linear_solver="mumps"']  # as mpi_table runs them
+    for space in args.coarse_spaces:  # an unknown coarse space fails here, not after the 1-rank runs
+        load_scene(CASES / "paper.toml", [*on_ranks, f'run.coarse_space="{space}"'])
     guarded = [Guarded(load_scene(CASES / "paper.toml", on_ranks), chain_levels(args.mpi_levels))]
     if args.mpi_3d_levels:
         guarded.append(Guarded(load_scene(CASES / "paper3d.toml", on_ranks), chain_levels(args.mpi_3d_levels)))
