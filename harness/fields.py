@@ -32,7 +32,7 @@ class Fields:
 def read_fields(path: Path) -> Fields:
     if not path.is_file():
         raise FieldsError(f"solution file not found: {path}")
-    import meshio  # here, not at start-up: its import (95 ms, its CLI pulls in rich) would delay FreeFEM's start (freefem.launch warms it)
+    import meshio  # here, not at start-up: its import (95 ms, its CLI pulls in rich) would delay FreeFEM's start (engine warms it while the last level runs)
     try:
         mesh = meshio.read(path)
     except Exception as exc:  # meshio raises several unrelated types for a broken file

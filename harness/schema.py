@@ -44,9 +44,9 @@ def nonnegative(v: float) -> str | None:
     return None if v >= 0 else "must be >= 0"
 
 
-def one_of(*choices: str) -> Check:
-    def check(v: str) -> str | None:
-        return None if v in choices else f"must be one of {', '.join(choices)}"
+def one_of(*choices: str | int) -> Check:
+    def check(v: str | int) -> str | None:
+        return None if v in choices else f"must be one of {', '.join(map(str, choices))}"
 
     return check
 
@@ -80,13 +80,6 @@ def increasing_pair(v: list) -> str | None:
 def safe_name(v: str) -> str | None:
     ok = v and v not in (".", "..") and all(c.isalnum() or c in "-_." for c in v)
     return None if ok else "must be a plain file name (letters, digits, - _ .)"
-
-
-def one_of_ints(*choices: int) -> Check:
-    def check(v: int) -> str | None:
-        return None if v in choices else f"must be one of {', '.join(map(str, choices))}"
-
-    return check
 
 
 _ROLE = one_of(*ROLE_LABELS)
@@ -277,7 +270,7 @@ BOX_GEOMETRY: dict[str, Key] = {
 GMSH_GEOMETRY: dict[str, Key] = {
     "kind": Key(str, check=one_of("gmsh")),
     "file": Key(str),  # relative to the case file
-    "dimension": Key(int, check=one_of_ints(2, 3)),
+    "dimension": Key(int, check=one_of(2, 3)),
     "roles": Key(object),  # physical-group name -> role, checked against the file
     # split: uniform refinements of the coarsest mesh (nested on straight-sided bodies);
     # remesh: an independent mesh per level (point-located transfer).

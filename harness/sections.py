@@ -20,9 +20,10 @@ def section_class(section: str, keys: dict | None = None, name: str | None = Non
 
 # section -> its dataclass; `Sections` holds one instance of each.
 SECTION_CLASSES: dict[str, type] = {section: section_class(section) for section in SCHEMA}
-# The [geometry] of a box scene (harness/box.py) has keys of its own.
-BOX_GEOMETRY_SECTION = section_class("geometry", BOX_GEOMETRY, "BoxGeometrySection")
-GMSH_GEOMETRY_SECTION = section_class("geometry", GMSH_GEOMETRY, "GmshGeometrySection")
+# The [geometry] of a box (harness/box.py) or gmsh scene (harness/gmsh_geometry.py) has keys
+# of its own, by kind as schema.geometry_keys.
+GEOMETRY_SECTIONS: dict[str, type] = {"box": section_class("geometry", BOX_GEOMETRY, "BoxGeometrySection"),
+                                      "gmsh": section_class("geometry", GMSH_GEOMETRY, "GmshGeometrySection")}
 Sections = dataclasses.make_dataclass(
     "Sections", [(section, cls) for section, cls in SECTION_CLASSES.items()], frozen=True)
 
@@ -30,7 +31,5 @@ Sections = dataclasses.make_dataclass(
 def sections_of(table: dict[str, dict[str, Any]]) -> Any:
     """A resolved table (scene.resolve) as a Sections instance."""
     classes = dict(SECTION_CLASSES)
-    kind = table.get("geometry", {}).get("kind")
-    if kind in ("box", "gmsh"):
-        classes["geometry"] = BOX_GEOMETRY_SECTION if kind == "box" else GMSH_GEOMETRY_SECTION
+    classes["geometry"] = GEOMETRY_SECTIONS.get(table.get("geometry", {}).get("kind"), classes["geometry"])
     return Sections(**{s: cls(**table.get(s, {})) for s, cls in classes.items()})

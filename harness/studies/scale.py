@@ -18,7 +18,7 @@ from pathlib import Path
 
 import pandas as pd
 
-from harness.arguments import add_memory_override, level_list
+from harness.arguments import add_memory_override, level_list, name_list
 from harness.hard_cases import case_files
 from harness.layout import REPO, Layout
 from harness.pipeline import Guarded, Plan, run_pipeline
@@ -40,11 +40,10 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
                         help="levels of the 3D paper scene (cases/paper3d.toml) solved on 1 and 2 ranks (empty: none)")
     parser.add_argument("--stress-levels", type=level_list, default=(2, 4),
                         help="levels of every stress case (empty: each case's own)")
-    parser.add_argument("--clusters", type=lambda text: tuple(t.strip() for t in text.split(",") if t.strip()),
-                        default=("local:1", "local:2"), help="the Dask clusters the stress suite is timed on")
+    parser.add_argument("--clusters", type=name_list, default=("local:1", "local:2"),
+                        help="the Dask clusters the stress suite is timed on")
     parser.add_argument("--stress-repeats", type=int, default=5, help="timed runs of the stress suite per executor")
-    parser.add_argument("--coarse-spaces", type=lambda text: tuple(t.strip() for t in text.split(",") if t.strip()),
-                        default=("none", "nested"),
+    parser.add_argument("--coarse-spaces", type=name_list, default=("none", "nested"),
                         help="the Schwarz coarse spaces (run.coarse_space) each solve on 2 ranks is timed with")
     parser.add_argument("--results", type=Path, default=Layout().results, help="results root")
     add_memory_override(parser)
@@ -54,11 +53,11 @@ def run(args: argparse.Namespace) -> int:
     out = args.results / "scale"
     work = Layout(results=out / "runs")
     on_ranks = ['run.linear_solver="mumps"']  # as mpi_table runs them
-    for space in args.coarse_spaces:  # an unknown coarse space fails here, not after the 1-rank runs
-        load_scene(CASES / "paper.toml", [*on_ranks, f'run.coarse_space="{space}"'])
-    guarded = [Guarded(load_scene(CASES / "paper.toml", on_ranks), chain_levels(args.mpi_levels))]
+    # Each configuration mpi_table runs (an unknown coarse space fails here, before any run).
+    configs = [[*on_ranks, f'run.coarse_space="{space}"'] for space in dict.fromkeys(("none", *args.coarse_spaces))]
+    guarded = [Guarded(load_scene(CASES / "paper.toml", c), chain_levels(args.mpi_levels)) for c in configs]
     if args.mpi_3d_levels:
-        guarded.append(Guarded(load_scene(CASES / "paper3d.toml", on_ranks), chain_levels(args.mpi_3d_levels)))
+        guarded += [Guarded(load_scene(CASES / "paper3d.toml", c), chain_levels(args.mpi_3d_levels)) for c in configs]
     guarded += [Guarded(load_scene(case), tuple(args.stress_levels)) for case in case_files([])]
     plan = Plan(args.results, tuple(guarded), outputs=(out,), ignore_memory=args.ignore_memory)
 
