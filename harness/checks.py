@@ -11,7 +11,7 @@ import numpy as np
 
 from harness.errors import HarnessError
 from harness.fields import Fields
-from harness.gmsh_mesh import boundary_facets, outward_normals, signed_measures
+from harness.gmsh_mesh import boundary_facets, outward_normals, signed_measures, turned_over
 from harness.record import RunRecord
 from harness.scene import Scene
 
@@ -48,22 +48,23 @@ def contact_nodes(scene: Scene, fields: Fields) -> list[np.ndarray]:
     """Indices of the nodes on Gamma_3, whatever its place and normal (the scene's geometry
     says which points lie on it: harness/segments.py, box.py, gmsh_geometry.py); in 2D sorted
     along the tangent, so consecutive nodes of one straight part bound a Gamma_3 edge."""
-    on = np.flatnonzero(scene.geometry.contact_mask(fields.points))
+    mask = scene.geometry.contact_mask(fields.points)
+    on = np.flatnonzero(mask)
     if scene.dimension == 2 and len(on):
-        normal = contact_normal(scene, fields)
+        normal = contact_normal(scene, fields, mask)
         along = fields.points[on, :2] @ np.array([-normal[1], normal[0]])
         on = on[np.argsort(along, kind="stable")]
     return [on]
 
 
-def contact_normal(scene: Scene, fields: Fields) -> np.ndarray:
+def contact_normal(scene: Scene, fields: Fields, mask: np.ndarray | None = None) -> np.ndarray:
     """Gamma_3's outward unit normal, from the mesh's boundary facets on it (their mean: the
-    contact part is flat, harness/gmsh_mesh.py check_flat_contact)."""
-    cells = fields.cells.copy()
-    negative = signed_measures(fields.points, cells) < 0
-    cells[negative, -1], cells[negative, -2] = cells[negative, -2], cells[negative, -1].copy()
+    contact part is flat, harness/gmsh_mesh.py check_flat_contact); `mask`: the nodes on
+    Gamma_3 when the caller has them (geometry.contact_mask)."""
+    cells = turned_over(fields.cells, signed_measures(fields.points, fields.cells) < 0)
     facets = boundary_facets(cells)
-    facets = facets[scene.geometry.contact_mask(fields.points)[facets].all(axis=1)]
+    mask = scene.geometry.contact_mask(fields.points) if mask is None else mask
+    facets = facets[mask[facets].all(axis=1)]
     if not len(facets):
         raise HarnessError(f"{fields.source}: no boundary facet lies on Gamma_3")
     mean = outward_normals(fields.points, facets).mean(axis=0)

@@ -158,6 +158,13 @@ def signed_measures(points: np.ndarray, cells: np.ndarray) -> np.ndarray:
     return np.linalg.det(edges) / math.factorial(cells.shape[1] - 1)
 
 
+def turned_over(cells: np.ndarray, which: np.ndarray) -> np.ndarray:
+    """A copy of `cells` with the cells `which` selects turned over (last two vertices swapped)."""
+    cells = cells.copy()
+    cells[which, -1], cells[which, -2] = cells[which, -2], cells[which, -1].copy()
+    return cells
+
+
 def oriented(points: np.ndarray, cells: np.ndarray, owners: np.ndarray, n: int) -> np.ndarray:
     """Positively oriented cells. gmsh orients each surface or volume one way: a surface
     drawn clockwise comes out all negative and is turned over; a cell against the majority
@@ -172,7 +179,6 @@ def oriented(points: np.ndarray, cells: np.ndarray, owners: np.ndarray, n: int) 
         i = int(np.flatnonzero(flat)[0])
         raise MeshError(f"n={n}: {kind} {i + 1} at {place(points[cells[i]])} is degenerate "
                         f"(measure {measure[i]:.3g}, longest edge {longest[i]:.3g})")
-    cells = cells.copy()
     for entity in np.unique(owners):
         mine = owners == entity
         sign = 1.0 if np.count_nonzero(measure[mine] > 0) >= np.count_nonzero(measure[mine] < 0) else -1.0
@@ -182,7 +188,7 @@ def oriented(points: np.ndarray, cells: np.ndarray, owners: np.ndarray, n: int) 
             raise MeshError(f"n={n}: {kind} {i + 1} at {place(points[cells[i]])} is inverted "
                             f"(its orientation is against the rest of its {'surface' if d == 2 else 'volume'} {entity})")
         if sign < 0:
-            cells[mine, -1], cells[mine, -2] = cells[mine, -2], cells[mine, -1].copy()
+            cells = turned_over(cells, mine)
     return cells
 
 

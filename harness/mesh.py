@@ -22,9 +22,9 @@ from harness.mesh_check import MeshSummary, check_arrays
 from harness.schema import ROLE_LABELS
 from harness.segments import Geometry
 from harness.box import Box
-from harness import box_mesh, gmsh_mesh, signals
+from harness import box_mesh, gmsh_mesh
 from harness.gmsh_geometry import GmshGeometry
-from harness.gmsh_api import GMSH  # noqa: F401  (re-exported: whoever meshes from a thread holds it)
+from harness.gmsh_api import GMSH, session  # noqa: F401  (GMSH re-exported: whoever meshes from a thread holds it)
 
 # gmsh's transfinite arrangement that cuts each cell along the requested diagonal.
 ARRANGEMENT = {"SW-NE": "Right", "NW-SE": "Left"}
@@ -46,14 +46,20 @@ def coarser_levels(n: int, count: int, coarsest: int = 2) -> list[int]:
     return levels
 
 
-def coarser_meshes(geometry: Geometry | Box | GmshGeometry, n: int, count: int, coarsest: int, directory: Path,
-                   make: bool = True) -> list[Path]:
-    """The meshes of `coarser_levels(n, count, coarsest)`, finest first; made (or refreshed)
-    only with `make`: a run's cache key needs their names, not their files (2D n = 512's four
-    coarser meshes take 9 s). A split gmsh scene's family starts at its own coarsest level."""
+def family_levels(geometry: Geometry | Box | GmshGeometry, n: int, count: int, coarsest: int = 2) -> list[int]:
+    """`coarser_levels` of the geometry's nested family: a split gmsh scene's starts at its
+    own coarsest level."""
     if isinstance(geometry, GmshGeometry) and geometry.levels == "split":
         coarsest = max(coarsest, geometry.coarsest)
-    levels = coarser_levels(n, count, coarsest)
+    return coarser_levels(n, count, coarsest)
+
+
+def coarser_meshes(geometry: Geometry | Box | GmshGeometry, n: int, count: int, coarsest: int, directory: Path,
+                   make: bool = True) -> list[Path]:
+    """The meshes of `family_levels(geometry, n, count, coarsest)`, finest first; made (or
+    refreshed) only with `make`: a run's cache key needs their names, not their files (2D
+    n = 512's four coarser meshes take 9 s)."""
+    levels = family_levels(geometry, n, count, coarsest)
     if not make:
         return [mesh_path(directory, m) for m in levels]
     with GMSH:
@@ -114,22 +120,16 @@ def generate_rectangle(geometry: Geometry, cells: dict[float, int], n: int) -> R
     """The level-n mesh: gmsh's transfinite strips snapped onto the h-lattice, or (no
     `cells`) its unstructured triangles distorted. The nodes are moved in numpy, not by
     gmsh's per-node setNode, which took 44 % of the finest mesh's time at n = 64."""
-    # interruptible=False: gmsh must not install a SIGINT handler (fails off the main thread).
-    gmsh.initialize(readConfigFiles=False, interruptible=False)
-    signals.reassert()  # gmsh.initialize resets SIGTERM, SIGHUP and SIGPIPE to their defaults
     try:
-        gmsh.option.setNumber("General.Terminal", 0)
-        gmsh.model.add("scene")
-        add_strips(geometry, cells, size=0.0 if cells else 1.0 / n)
-        gmsh.model.mesh.generate(2)
-        mesh, inner = read_rectangle()
+        with session():
+            gmsh.model.add("scene")
+            add_strips(geometry, cells, size=0.0 if cells else 1.0 / n)
+            gmsh.model.mesh.generate(2)
+            mesh, inner = read_rectangle()
     except MeshError:
         raise
     except Exception as exc:  # gmsh raises a bare Exception with its own log text
         raise MeshError(f"gmsh failed: {exc}") from None
-    finally:
-        gmsh.finalize()
-        signals.reassert()
     points = snap_to_lattice(mesh.points, n) if cells else distort(mesh.points, mesh.triangles, inner, n)
     return replace(mesh, points=points)
 
@@ -313,28 +313,22 @@ def unstructured_box(box: Box, n: int) -> tuple[np.ndarray, np.ndarray]:
     """gmsh's tetrahedra of about size 1/n (Delaunay, one thread: the same mesh every time)
     on the box cut into blocks at every patch edge, so that each boundary triangle lies in
     one patch; (points, tetrahedra) as index arrays."""
-    gmsh.initialize(readConfigFiles=False, interruptible=False)
-    signals.reassert()  # gmsh.initialize resets SIGTERM, SIGHUP and SIGPIPE to their defaults
     try:
-        gmsh.option.setNumber("General.Terminal", 0)
-        gmsh.option.setNumber("General.NumThreads", 1)
-        gmsh.model.add("box")
-        x, y, z = (box.cuts(axis) for axis in range(3))
-        blocks = [(3, gmsh.model.occ.addBox(x0, y0, z0, x1 - x0, y1 - y0, z1 - z0))
-                  for x0, x1 in zip(x, x[1:]) for y0, y1 in zip(y, y[1:]) for z0, z1 in zip(z, z[1:])]
-        if len(blocks) > 1:
-            gmsh.model.occ.fragment(blocks[:1], blocks[1:])  # shared faces: one conforming mesh
-        gmsh.model.occ.synchronize()
-        gmsh.option.setNumber("Mesh.MeshSizeMax", 1.0 / n)
-        gmsh.option.setNumber("Mesh.Algorithm3D", 1)
-        gmsh.model.mesh.generate(3)
-        tags, coords, _ = gmsh.model.mesh.getNodes()
-        _, nodes = gmsh.model.mesh.getElementsByType(4)  # 4-node tetrahedra
+        with session(threads=1):
+            gmsh.model.add("box")
+            x, y, z = (box.cuts(axis) for axis in range(3))
+            blocks = [(3, gmsh.model.occ.addBox(x0, y0, z0, x1 - x0, y1 - y0, z1 - z0))
+                      for x0, x1 in zip(x, x[1:]) for y0, y1 in zip(y, y[1:]) for z0, z1 in zip(z, z[1:])]
+            if len(blocks) > 1:
+                gmsh.model.occ.fragment(blocks[:1], blocks[1:])  # shared faces: one conforming mesh
+            gmsh.model.occ.synchronize()
+            gmsh.option.setNumber("Mesh.MeshSizeMax", 1.0 / n)
+            gmsh.option.setNumber("Mesh.Algorithm3D", 1)
+            gmsh.model.mesh.generate(3)
+            tags, coords, _ = gmsh.model.mesh.getNodes()
+            _, nodes = gmsh.model.mesh.getElementsByType(4)  # 4-node tetrahedra
     except Exception as exc:  # gmsh raises a bare Exception with its own log text
         raise MeshError(f"gmsh failed on the box at n={n}: {exc}") from None
-    finally:
-        gmsh.finalize()
-        signals.reassert()
     index = np.full(int(tags.max()) + 1, -1)
     index[tags.astype(int)] = np.arange(len(tags))
     points = coords.reshape(-1, 3)

@@ -30,8 +30,9 @@ def contact_face(fields: Fields, case: Path | None) -> tuple[Section, str]:
         bottom = fields.points[:, 2].min()
         return plane(fields, 2, bottom), f"the contact face z = {bottom:g}"
     scene = load_scene(case)
-    on = np.flatnonzero(scene.geometry.contact_mask(fields.points))
-    normal = contact_normal(scene, fields)
+    mask = scene.geometry.contact_mask(fields.points)
+    on = np.flatnonzero(mask)
+    normal = contact_normal(scene, fields, mask)
     first = np.cross(normal, [0.0, 1.0, 0.0] if abs(normal[1]) < 0.9 else [1.0, 0.0, 0.0])
     first /= np.linalg.norm(first)
     xy = fields.points[on] @ np.column_stack([first, np.cross(first, normal)])

@@ -20,7 +20,7 @@ from harness.gmsh_geometry import GmshGeometry
 from harness.faults import disk_full, space_for
 from harness.signals import CHILDREN, Interrupted
 from harness.layout import Layout
-from harness.mesh import coarser_levels, coarser_meshes
+from harness.mesh import coarser_meshes, family_levels
 from harness.record import RunRecord, read_run_json, write_run_json
 from harness.scene import Scene
 from harness.script import main_script
@@ -281,7 +281,8 @@ def coarse_space_options(scene: Scene, n: int, mesh: Path, make: bool = True) ->
     coarse = coarser_meshes(scene.geometry, n, scene.coarse_levels, 2, mesh.resolve().parent, make)
     if not coarse:
         return []
-    return ["-ddm.coarse_mesh", str(coarse[-1]), "-ddm.coarse_n", str(coarser_levels(n, scene.coarse_levels)[-1])]
+    coarse_n = family_levels(scene.geometry, n, scene.coarse_levels)[-1]  # the level of coarse[-1]
+    return ["-ddm.coarse_mesh", str(coarse[-1]), "-ddm.coarse_n", str(coarse_n)]
 
 
 def manufactured_macros(scene: Scene, layout: Layout) -> dict[str, str]:

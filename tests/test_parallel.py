@@ -432,3 +432,15 @@ def test_the_scale_table_times_two_ranks_with_and_without_the_coarse_space(tmp_p
     its = [sum(map(int, row.krylov_iterations.split())) for row in (plain, nested)]
     assert its[1] < 0.8 * its[0], its
     assert "coarse correction" in nested.linear_solver and "coarse" not in plain.linear_solver
+
+
+def test_the_coarse_space_names_the_level_of_its_own_mesh(tmp_path):
+    """A split gmsh scene's nested family starts at its own coarsest level (here 4): the coarse
+    space's mesh and the level FreeFEM is told (and records) are the same one. Before, the
+    mesh was n = 4's and the level said 2."""
+    from harness.run import coarse_space_options
+
+    scene = load_scene(CASES / "paper_gmsh.toml", ["geometry.coarsest=4", "study.levels=[4, 8, 16]", "run.ranks=2"])
+    options = coarse_space_options(scene, 16, tmp_path / "mesh_n16.msh", make=False)
+    mesh, level = options[options.index("-ddm.coarse_mesh") + 1], options[options.index("-ddm.coarse_n") + 1]
+    assert Path(mesh).name == "mesh_n4.msh" and level == "4"
