@@ -1,4 +1,4 @@
-"""The process boundary to the GetFEM peer (getfem/peer.py, run by Debian's Python): its
+"""The process boundary to the GetFEM peer (peer_getfem/peer.py, run by Debian's Python): its
 input file (the scene's data and the material's values), its launch, its output.
 
 The venv never imports getfem: the peer is a separate process with files in and out, the
@@ -22,7 +22,7 @@ from harness.errors import PeerMissing, RunError, SceneError
 
 SYSTEM_PYTHON = "/usr/bin/python3"
 PACKAGE = "python3-getfem"
-RUNNER = Path(__file__).resolve().parents[1] / "getfem" / "peer.py"
+RUNNER = Path(__file__).resolve().parents[1] / "peer_getfem" / "peer.py"
 # The material tensors the peer needs: macro name -> key of its input (docs/model.md section 8).
 MATERIAL_MACROS = {"materialC": "C", "materialE": "e", "materialBeta": "beta", "materialK": "k",
                    "materialM": "m", "materialP": "p", "materialAlpha": "alpha"}

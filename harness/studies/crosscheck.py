@@ -1,5 +1,5 @@
 """`python -m harness crosscheck CASE [CASE ...] --levels 2,4,8 --branches zero,pressed`:
-every level solved by FreeFEM (the harness's chain) and by the GetFEM peer (getfem/peer.py,
+every level solved by FreeFEM (the harness's chain) and by the GetFEM peer (peer_getfem/peer.py,
 from the branch's start) on the same mesh; the relative difference of each field in its norm
 (V, W, Q) and at the nodes, the contact integrals, Newton iterations, whole-process time and
 memory of both, into results/crosscheck/ (crosscheck.csv, crosscheck.md, crosscheck.png).

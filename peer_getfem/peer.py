@@ -1,6 +1,6 @@
 """The GetFEM peer: one level of a scene solved by GetFEM, an independent second code.
 
-    /usr/bin/python3 getfem/peer.py PROBLEM.json OUTPUT.json
+    /usr/bin/python3 peer_getfem/peer.py PROBLEM.json OUTPUT.json
 
 PROBLEM.json (written by harness/peer.py) names the level's mesh (the MSH 2.2 file the
 harness made for FreeFEM), the role labels, the scene's effects and data, the material's
