@@ -5,7 +5,7 @@ set -euo pipefail
 python="$1"
 venv="$2"
 # Debian splits venv/ensurepip out of python3 itself.
-if ! "$python" -c "import ensurepip, venv" >/dev/null 2>&1; then
+if ! (cd / && "$python" -I -c "import ensurepip, venv") >/dev/null 2>&1; then
   bash "$(dirname "$0")/apt-install.sh" "python$("$python" -c 'import sys; print("%d.%d" % sys.version_info[:2])')-venv"
 fi
 rm -rf "$venv"
