@@ -8,7 +8,7 @@ from pathlib import Path
 from typing import NoReturn
 
 from harness.contract import ExitCode
-from harness.layout import REPO, Layout
+from harness.layout import REPO, Layout, results_root
 
 
 class Parser(argparse.ArgumentParser):
@@ -56,12 +56,22 @@ def add_jobs(parser: argparse.ArgumentParser, default: int | None = None) -> Non
     parser.add_argument("--jobs", type=positive_int, default=default or os.cpu_count() or 1, help="parallel runs")
 
 
-def add_common(parser: argparse.ArgumentParser, results: Path | None = None) -> None:
-    """--force, --results, --freefem and the memory guard's override."""
-    parser.add_argument("--force", action="store_true", help="rerun even if inputs are unchanged")
-    parser.add_argument("--results", type=Path, default=results or Layout().results, help="results root")
-    parser.add_argument("--freefem", type=Path, default=Layout().freefem, help="solver scripts")
+def add_common(parser: argparse.ArgumentParser, under: str = "") -> None:
+    """--force, --results, --freefem and the memory guard's override. `under`: the study's
+    own folder inside ./results (its default)."""
+    parser.add_argument("--force", action="store_true",
+                        help="run every level again, even those whose inputs are unchanged since the last run")
+    add_results(parser, under)
+    parser.add_argument("--freefem", type=Path, default=Layout().freefem, metavar="DIR",
+                        help="the folder of FreeFEM scripts to solve with (default: the harness's own freefem/)")
     add_memory_override(parser)
+
+
+def add_results(parser: argparse.ArgumentParser, under: str = "") -> None:
+    default = results_root() / under if under else results_root()
+    parser.add_argument("--results", type=Path, default=default, metavar="DIR",
+                        help=f"the folder results are written into (default: {default.relative_to(Path.cwd())} "
+                        "under the working directory)")
 
 
 def add_memory_override(parser: argparse.ArgumentParser) -> None:

@@ -2,17 +2,24 @@
 
 from __future__ import annotations
 
-from dataclasses import dataclass
+from dataclasses import dataclass, field
 from pathlib import Path
 
 REPO = Path(__file__).resolve().parents[1]
+
+
+def results_root() -> Path:
+    """`./results` under the working directory: a study writes where its user stands, not
+    into the checkout the harness was installed from (the Makefile runs from the checkout's
+    root, so its targets still write into the checkout's results/)."""
+    return Path.cwd() / "results"
 
 
 @dataclass(frozen=True)
 class Layout:
     """results/<case>/{meshes/mesh_n<N>.msh, n<N>/, n<N>.failed/, convergence.*, summary.json}."""
 
-    results: Path = REPO / "results"
+    results: Path = field(default_factory=results_root)
     freefem: Path = REPO / "freefem"
 
     def case_dir(self, case: str) -> Path:

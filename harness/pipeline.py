@@ -4,6 +4,7 @@ Every study (harness/studies/) is this call with its own three functions:
 
     run_pipeline(plan, runs=..., report=..., verdict=...)
 
+- its first line names the harness that runs and the results folder it writes into;
 - guards, before anything is meshed or run: the results folder can hold results, every
   scene's warnings are printed, its levels are nested (when the study compares levels),
   its finest levels fit in memory (unless overridden), and its meshes fit on the disk;
@@ -65,6 +66,13 @@ def scene_of(case: Path, overrides: Sequence[str] = (), effects: Sequence[str] |
     return load_scene(case, overrides)
 
 
+def announce(results: Path) -> None:
+    """The study's first line: which harness runs (a venv may hold another checkout's) and
+    where its results go."""
+    code = Path(__file__).resolve().parent
+    print(f"harness {code}; results in {Path(results).resolve()}", flush=True)
+
+
 def check_guards(plan: Plan) -> None:
     """Every guard of the plan, before anything is meshed or run (harness/guards.py)."""
     check_results_root(plan.results)
@@ -91,6 +99,7 @@ def run_pipeline(plan: Plan, runs: Callable[[], R], report: Callable[[R], object
                  verdict: Callable[[R], str | None] = lambda _: None) -> R:
     """Guards, then the runs and the report inside one transaction, then the verdict: a
     message from `verdict` is raised as a VerdictError (exit 1), the report already written."""
+    announce(plan.results)
     check_guards(plan)
     with StudyTransaction(*plan.scene_dirs, outputs=plan.outputs):
         result = runs()

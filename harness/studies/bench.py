@@ -45,7 +45,7 @@ from typing import Any, Callable, Sequence
 import pandas as pd
 
 from harness import freefem
-from harness.arguments import add_case, add_levels, add_memory_override, name_list, positive_int
+from harness.arguments import add_case, add_levels, add_memory_override, add_results, name_list, positive_int
 from harness.engine import freefem_startup_s, quiet, run_levels, runs_of, timed_meshes
 from harness.errors import HarnessError
 from harness.layout import REPO, Layout
@@ -58,7 +58,6 @@ from harness.pipeline import Guarded, Plan, run_pipeline
 from harness.writers import markdown_table, write_csv, write_json, write_text
 
 GETFEM_FINEST_S = 11.6  # issue 5: GetFEM + SuperLU, 5 Newton iterations, h = 1/64
-DEFAULT_RESULTS = REPO / "results" / "bench"
 SOLVER_KEYS = ("wall_s", "first_factorisation_s", "solve_s", "newton_s", "gmres_iterations", "peak_rss_mb")
 FINEST_KEYS = ("wall_s", "total_s", "newton_s", "bulk_assembly_s", "first_factorisation_s", "factorisation_s",
                "solve_s", "output_s", "newton_over_linear", "newton_iterations", "gmres_iterations", "peak_rss_mb")
@@ -270,7 +269,7 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
                         help=f"comma-separated measurements ({', '.join(MEASUREMENTS)})")
     parser.add_argument("--max-load", type=float, default=1.2, help="wait for a 1-min load below this")
     parser.add_argument("--wait-s", type=float, default=1200, help="at most this long")
-    parser.add_argument("--results", type=Path, default=DEFAULT_RESULTS)
+    add_results(parser, under="bench")
     add_memory_override(parser)
 
 

@@ -36,12 +36,11 @@ from harness.arguments import add_case, add_cluster, add_common, add_jobs, add_l
 from harness.branch_starts import LEVELS, PAPER, STARTS, branch_row, same_branch, start_scene
 from harness.errors import SceneError
 from harness.executor import cluster, each
-from harness.layout import REPO
+from harness.layout import results_root
 from harness.norm_table import error_names
 from harness.pipeline import Guarded, Plan, run_pipeline
 from harness.writers import cell, markdown_table, write_csv, write_text
 
-RESULTS = REPO / "results" / "branches"
 
 
 HEADER = ("start", "branch", "Newton its per level", "max θ [K]", "φ range [V]", "max \\|u\\| [m]",
@@ -76,7 +75,7 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
 
 def results_for(case: Path) -> Path:
     """results/branches/ for the paper's scene, results/branches_<case>/ for any other."""
-    return RESULTS if case.resolve() == PAPER.resolve() else RESULTS.with_name(f"branches_{case.stem}")
+    return results_root() / ("branches" if case.resolve() == PAPER.resolve() else f"branches_{case.stem}")
 
 
 def run(args: argparse.Namespace) -> int:

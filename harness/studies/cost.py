@@ -34,13 +34,12 @@ from harness.arguments import add_case, add_common, add_levels, level_list, name
 from harness.errors import SceneError
 from harness.frontier import (DISCRETISATIONS, CostStudy, frontier_markdown, planned_scenes, run_cost, scene_names,
                               write_outputs)
-from harness.layout import REPO, Layout
+from harness.layout import Layout
 from harness.norm_table import FIELD_NAMES, error_column
 from harness.pipeline import Guarded, Plan, run_pipeline
 from harness.scene import load_scene
 from harness.segments import Geometry
 
-DEFAULT_RESULTS = REPO / "results" / "cost"
 
 
 def reference_spec(text: str) -> tuple[str, int]:
@@ -60,7 +59,7 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
                              "P1-graded grades a rectangle's mesh only)")
     parser.add_argument("--scaling-levels", type=level_list, default=(128, 256),
                         help="levels the P1 chain goes on to, for time and memory against dofs")
-    add_common(parser, results=DEFAULT_RESULTS)
+    add_common(parser, under="cost")
 
 
 def run(args: argparse.Namespace) -> int:

@@ -20,6 +20,7 @@ from harness.errors import Disagreement, FieldsError, RunError, SceneError
 from harness.faults import check_results_root
 from harness.fields import Fields, read_fields
 from harness.layout import Layout
+from harness.pipeline import announce
 from harness.norm_table import MEASURE
 from harness.peer import material_values, pressed_depth, problem, require_getfem, run_peer
 from harness.record import RunRecord
@@ -46,6 +47,7 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
 
 
 def run(args: argparse.Namespace) -> int:
+    announce(args.out or args.results)
     check_results_root(args.results)
     # Both codes' runs in RESULTS/crosscheck/runs/<scene>/ (not committed): FreeFEM's every
     # level from the branch's start, not the warm-started runs of a study.

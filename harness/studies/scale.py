@@ -18,7 +18,7 @@ from pathlib import Path
 
 import pandas as pd
 
-from harness.arguments import add_memory_override, level_list, name_list
+from harness.arguments import add_memory_override, add_results, level_list, name_list
 from harness.hard_cases import case_files
 from harness.layout import REPO, Layout
 from harness.pipeline import Guarded, Plan, run_pipeline
@@ -45,7 +45,7 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
     parser.add_argument("--stress-repeats", type=int, default=5, help="timed runs of the stress suite per executor")
     parser.add_argument("--coarse-spaces", type=name_list, default=("none", "nested"),
                         help="the Schwarz coarse spaces (run.coarse_space) each solve on 2 ranks is timed with")
-    parser.add_argument("--results", type=Path, default=Layout().results, help="results root")
+    add_results(parser)
     add_memory_override(parser)
 
 

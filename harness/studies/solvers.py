@@ -31,7 +31,7 @@ from typing import Any, Callable
 
 import pandas as pd
 
-from harness.arguments import add_memory_override, name_list, positive_int
+from harness.arguments import add_memory_override, add_results, name_list, positive_int
 from harness.engine import quiet, run_levels, runs_of, timed_meshes
 from harness.errors import RunError
 from harness.layout import REPO, Layout
@@ -44,7 +44,6 @@ from harness.unknowns import Unknowns
 from harness.writers import markdown_table, write_csv, write_text
 
 CASES = REPO / "cases"
-DEFAULT_RESULTS = REPO / "results" / "solvers"
 # Each solver: run.linear_solver and, for PETSc, run.petsc_options of the scene's Newton fields.
 SOLVERS: dict[str, tuple[str, Callable[[tuple[str, ...]], str]]] = {
     "mumps": ("mumps", lambda fields: ""),
@@ -186,7 +185,7 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
                         help="comma-separated rank counts: the rank table alone (e.g. 1,2,4,8)")
     parser.add_argument("--coarse-spaces", type=coarse_space_list, default=["none", "nested"],
                         help="run.coarse_space values of the rank table (default none,nested)")
-    parser.add_argument("--results", type=Path, default=DEFAULT_RESULTS)
+    add_results(parser, under="solvers")
     add_memory_override(parser)
 
 

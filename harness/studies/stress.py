@@ -35,13 +35,10 @@ from harness.executor import cluster, each
 from harness.freefem import freefem_version
 from harness.hard_cases import (PAPER_LEVELS, PAPER_STARTS, case_cost, case_files, paper_iterations, paper_scene,
                                 passed, summary_row, timed_case)
-from harness.layout import REPO
 from harness.norm_table import FIELD_NAMES
 from harness.pipeline import Guarded, Plan, run_pipeline
 from harness.scene import load_scene
 from harness.writers import cell, markdown_table, write_csv, write_text
-
-RESULTS = REPO / "results" / "stress"
 
 # ---- output ------------------------------------------------------------------------------
 
@@ -71,7 +68,7 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
     add_levels(parser, what="each case's")
     parser.add_argument("--paper-levels", type=level_list, default=PAPER_LEVELS,
                         help="levels of the paper's iteration table (empty: skip it)")
-    add_common(parser, results=RESULTS)
+    add_common(parser, under="stress")
     add_cluster(parser)
 
 
