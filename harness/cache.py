@@ -60,9 +60,12 @@ def source_digests(freefem_dir: Path, material: Path | None = None) -> dict[str,
     materials = freefem_dir / "materials"
     files = sorted(p for p in freefem_dir.rglob("*")
                    if p.suffix in (".idp", ".edp") and p.is_file() and materials not in p.parents)
-    if material is not None:
-        files.append(material)
-    return {str(p.relative_to(freefem_dir)): source_sha256(p) for p in files}
+    digests = {str(p.relative_to(freefem_dir)): source_sha256(p) for p in files}
+    if material is not None:  # a library material by its path in freefem/, a user's own by its name
+        inside = material.resolve().is_relative_to(freefem_dir.resolve())
+        name = str(material.resolve().relative_to(freefem_dir.resolve())) if inside else f"<material>/{material.name}"
+        digests[name] = source_sha256(material)
+    return digests
 
 
 def code_digests(modules: tuple[str, ...] = INPUT_WRITERS) -> dict[str, str]:

@@ -88,7 +88,7 @@ class Failure(enum.Enum):
     @property
     def bad_input(self) -> bool:
         """The run failed on what the user wrote (harness exit code INPUT), not in the solve."""
-        return self in (Failure.BAD_SOLVER_OPTIONS, Failure.BAD_ELECTRODES)
+        return self in (Failure.BAD_SOLVER_OPTIONS, Failure.BAD_ELECTRODES, Failure.INVALID_MATERIAL)
 
     @classmethod
     def from_code(cls, code: int) -> Failure:

@@ -35,7 +35,10 @@ class Layout:
         return self.case_dir(case) / f"n{n}.failed"
 
     def material_file(self, material: str) -> Path:
-        return self.freefem / "materials" / f"{material}.idp"
+        """A library name's file in freefem/materials/, or the path a scene gave."""
+        from harness.materials import file_of
+
+        return file_of(material, self.freefem)
 
     def material_reduction_file(self) -> Path:
         """Derives the plane-strain constants the scheme uses from a material's 3D set."""

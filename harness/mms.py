@@ -32,13 +32,10 @@ import sympy
 from harness import freefem
 from harness.errors import RunError, SceneError
 from harness.layout import Layout
+from harness.materials import CONSTANTS, CONSTANTS_3D, constants
 
 X, Y, Z = sympy.symbols("x y z", real=True)
 EXACT_KEYS = ("u1", "u2", "u3", "phi", "theta")  # u3: a box scene's (3D) only
-CONSTANTS = ("f11", "f13", "f33", "f44", "e31", "e33", "e15", "b11", "b33",
-             "m11", "m33", "p1", "p3", "k11", "k33")
-# The out-of-plane constants of the 3D law (freefem/constitutive.idp, material.idp).
-CONSTANTS_3D = ("fC12", "fC22", "fC23", "f2323", "f1212", "e24", "e32", "b22", "m22", "p2", "k22")
 # The law of a ceramic poled along 3 (class 6mm) in Voigt form (order 11 22 33 23 13 12,
 # engineering shears), as freefem/constitutive.idp writes it: C_IJ, e_kI by constant name.
 VOIGT_PAIRS = {1: (1, 1), 2: (2, 2), 3: (3, 3), 4: (2, 3), 5: (1, 3), 6: (1, 2)}
@@ -217,26 +214,8 @@ def scene_macros(scene, layout: Layout) -> dict[str, str]:
 
 
 def material_constants(material: str, layout: Layout) -> dict[str, float]:
-    return dict(_constants(str(layout.material_file(material).resolve()),
-                           str(layout.material_reduction_file().resolve())))
-
-
-@functools.cache
-def _constants(material_file: str, reduction_file: str) -> tuple[tuple[str, float], ...]:
-    """Include the material as a run does, print the plane-strain constants to 17 digits."""
-    includes = [material_file] + [reduction_file] * Path(reduction_file).is_file()
-    lines = [f'include "{p}"' for p in includes] + ["cout.precision(17);"]
-    lines += [f'cout << "{k} " << {k} << endl;' for k in CONSTANTS + CONSTANTS_3D]
-    with tempfile.TemporaryDirectory(prefix="ff-material-") as tmp:
-        script = Path(tmp) / "constants.edp"
-        script.write_text("\n".join(lines) + "\n")
-        outcome = freefem.invoke(freefem.command(script, []), Path(tmp), timeout_s=60)
-        text = (Path(tmp) / "stdout.txt").read_text()
-    values = dict(line.split() for line in text.splitlines() if len(line.split()) == 2)
-    if outcome.returncode != 0 or set(CONSTANTS + CONSTANTS_3D) - set(values):
-        raise RunError(f"FreeFEM could not print the constants of {material_file}: "
-                       f"{freefem.error_detail(text) or 'missing constants'}")
-    return tuple((k, float(values[k])) for k in CONSTANTS + CONSTANTS_3D)
+    return dict(constants(str(layout.material_file(material).resolve()),
+                          str(layout.material_reduction_file().resolve())))
 
 
 def numeric(derived: Mapping[str, sympy.Expr]) -> dict[str, Callable[[np.ndarray, np.ndarray], np.ndarray]]:

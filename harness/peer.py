@@ -8,26 +8,18 @@ from __future__ import annotations
 
 import json
 import math
-import re
 import subprocess
 import time
 from dataclasses import dataclass
 from pathlib import Path
 from typing import Any
 
-import numpy as np
-
 from harness.contract import ROLE_LABELS
-from harness.errors import PeerMissing, RunError, SceneError
+from harness.errors import PeerMissing, RunError
 
 SYSTEM_PYTHON = "/usr/bin/python3"
 PACKAGE = "python3-getfem"
 RUNNER = Path(__file__).resolve().parents[1] / "peer_getfem" / "peer.py"
-# The material tensors the peer needs: macro name -> key of its input (docs/model.md section 8).
-MATERIAL_MACROS = {"materialC": "C", "materialE": "e", "materialBeta": "beta", "materialK": "k",
-                   "materialM": "m", "materialP": "p", "materialAlpha": "alpha"}
-MACRO = re.compile(r"^\s*macro\s+(material\w+)\s+(.*?)//", re.MULTILINE | re.DOTALL)
-
 
 @dataclass(frozen=True)
 class PeerRun:
@@ -44,28 +36,6 @@ def require_getfem() -> None:
         raise PeerMissing(f"{SYSTEM_PYTHON} cannot run: the GetFEM peer needs Debian's Python with {PACKAGE}") from None
     if probe.returncode != 0:
         raise PeerMissing(f"GetFEM is not installed for {SYSTEM_PYTHON}: apt-get install {PACKAGE} (or make getfem)")
-
-
-def material_values(path: Path) -> dict[str, Any]:
-    """The 3D tensors of a material file (freefem/materials/<Name>.idp): C, e, beta, k, p and
-    m (or m = C alpha when the file gives the expansion alpha)."""
-    try:
-        text = path.read_text()
-    except OSError as exc:
-        raise SceneError(f"material file {path}: {exc.strerror}") from None
-    values: dict[str, Any] = {}
-    for name, body in MACRO.findall(text):
-        if name in MATERIAL_MACROS:
-            try:
-                values[MATERIAL_MACROS[name]] = json.loads(body.strip())
-            except ValueError:
-                raise SceneError(f"material file {path}: {name} is not a list of numbers") from None
-    if "alpha" in values:
-        values["m"] = (np.array(values.pop("alpha"), float) @ np.array(values["C"], float).T).tolist()
-    missing = sorted({"C", "e", "beta", "k", "m", "p"} - set(values))
-    if missing:
-        raise SceneError(f"material file {path}: no {missing[0]}")
-    return values
 
 
 def finite(value: Any) -> Any:

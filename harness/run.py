@@ -11,7 +11,7 @@ from dataclasses import dataclass
 from pathlib import Path
 from typing import Any
 
-from harness import freefem, launcher, petsc_plugin
+from harness import freefem, launcher, materials, petsc_plugin
 from harness.atomic import write_atomic
 from harness.contract import Failure
 from harness.cache import cached_record, run_inputs, sha256_file, write_checksums
@@ -67,11 +67,15 @@ class RunResult:
 
 
 def check_solver_files(scene: Scene, layout: Layout) -> None:
-    """Fail before meshing or running when the case names a material the repo lacks."""
+    """Fail before meshing or running when the case names a material that is missing or
+    invalid (harness/materials.py) or the solver scripts are missing."""
     wanted = layout.material_file(scene.material)
     if not wanted.is_file():
-        available = ", ".join(sorted(p.stem for p in wanted.parent.glob("*.idp"))) or "none"
-        raise SceneError(f"unknown material {scene.material!r}: no {wanted} (available: {available})")
+        library = layout.material_file("-").parent
+        available = ", ".join(sorted(p.stem for p in library.glob("*.idp"))) or "none"
+        raise SceneError(f"{scene.source}: unknown material {scene.material!r}: no file {wanted} "
+                         f"(available: {available} in {library}, or give a path to a .idp file)")
+    materials.check(wanted, layout.material_reduction_file())
     if not layout.scheme_file().is_file():
         raise RunError(f"no solver script {layout.scheme_file()}")
 

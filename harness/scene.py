@@ -14,7 +14,8 @@ from harness.errors import SceneError
 from harness.petsc_plugin import default_options, factorising, multigrid
 from harness.box import Box, parse_box
 from harness.gmsh_geometry import GmshGeometry, check_poling, parse_gmsh
-from harness.schema import EFFECTS, REQUIRED, SCHEMA, SOLVER_SECTIONS, Key, effect_of, geometry_keys
+from harness.schema import (EFFECTS, REQUIRED, SCHEMA, SOLVER_SECTIONS, Key, effect_of, geometry_keys,
+                            is_material_path)
 from harness.sections import sections_of
 from harness.segments import Geometry, parse_geometry
 from harness.unknowns import Unknowns
@@ -167,6 +168,8 @@ def load_scene(path: Path, overrides: Iterable[str] = ()) -> Scene:
         for item in overrides:
             apply_override(raw, item)
         table, warnings = resolve(raw)
+        if is_material_path(table["scene"]["material"]):  # relative to the case file, as a .geo
+            table["scene"]["material"] = str((path.parent / table["scene"]["material"]).resolve())
         geometry = parse_any_geometry(table, path.parent)
         check_poling(table["scene"]["poling_axis"], getattr(geometry, "dimension", 2))
         check_expect(table["expect"])

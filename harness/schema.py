@@ -82,6 +82,17 @@ def safe_name(v: str) -> str | None:
     return None if ok else "must be a plain file name (letters, digits, - _ .)"
 
 
+def is_material_path(material: str) -> bool:
+    """`scene.material` names a file (it has a folder or the .idp suffix), not a library name."""
+    return "/" in material or material.endswith(".idp")
+
+
+def material_reference(v: str) -> str | None:
+    if is_material_path(v):
+        return None if v.endswith(".idp") else "must be a material name or a path to a .idp file"
+    return None if safe_name(v) is None else "must be a material name (letters, digits, - _ .) or a path to a .idp file"
+
+
 _ROLE = one_of(*ROLE_LABELS)
 
 # Effects a scene can switch on (elasticity is always on), each with its prerequisites.
@@ -134,7 +145,7 @@ SCHEMA: dict[str, dict[str, Key]] = {
     "scene": {
         "name": Key(str, check=safe_name),
         "description": Key(str, ""),
-        "material": Key(str, check=safe_name),
+        "material": Key(str, check=material_reference),
         "effects": Key(list, list(EFFECTS), effect_list),
         # zero | pressed: Newton's start on every level; coarser: each level starts from
         # the solution of the next coarser level (the coarsest from `coarsest_guess`),

@@ -19,7 +19,8 @@ from harness import cli
 from harness.contract import ExitCode, ROLE_LABELS
 from harness.layout import REPO
 from harness.mesh import build_mesh, mesh_path
-from harness.peer import RUNNER, SYSTEM_PYTHON, material_values, problem, run_peer
+from harness.materials import values as material_values
+from harness.peer import RUNNER, SYSTEM_PYTHON, problem, run_peer
 from harness.scene import load_scene
 
 CASES = REPO / "cases"

@@ -154,10 +154,65 @@ def test_the_harness_stops_a_bad_material_before_solving(case, tmp_path, capsys)
     variant(tree / "materials", "Bad", *edits, drop=drop)
     code, directory = solve(tmp_path / "results", "Bad", tree)
     err = capsys.readouterr().err.strip().splitlines()
-    assert code != 0
-    assert len(err) == 1 and "invalid material" in err[0] and "error: material Bad: " + message in err[0], err
+    assert code == 2  # bad input, refused before FreeFEM solves (it was 3, a failed run)
+    # The line names the file now (it read "... invalid material: error: material Bad: ...").
+    assert len(err) == 1 and "invalid material" in err[0] and "material Bad: " + message in err[0], err
+    assert str(tree / "materials" / "Bad.idp") in err[0], err
     failed = directory.with_name("n4.failed")
     assert not (failed / "run.json").exists() and not (failed / "solution.vtu").exists()
+    assert not (tmp_path / "results").exists()  # refused before anything was meshed
+
+
+def case_with_material(tmp: Path, material: str) -> Path:
+    """The paper's case in `tmp`, its scene.material set to `material` as a user writes it."""
+    text = PAPER.read_text().replace('material = "BaTiO3"', f'material = "{material}"')
+    assert f'material = "{material}"' in text
+    case = tmp / "case.toml"
+    case.write_text(text)
+    return case
+
+
+def test_a_material_file_outside_the_library_is_read_from_its_path(tmp_path, capsys):
+    (tmp_path / "mine").mkdir()
+    variant(tmp_path / "mine", "MyOwn", ("[0, 0, 0, 0, 43e9, 0],", "[0, 0, 0, 0, 40e9, 0],"))
+    case = case_with_material(tmp_path, "mine/MyOwn.idp")  # relative to the case file, as a .geo
+    code = main(["solve", str(case), "--n", "4", "--results", str(tmp_path / "results")])
+    assert code == 0, capsys.readouterr().err
+    record = read_run_json(tmp_path / "results" / "paper" / "n4")
+    assert record.material == "MyOwn" and record.converged is True
+
+
+def test_a_material_name_that_differs_from_its_file_is_refused(tmp_path, capsys):
+    path = variant(tmp_path, "MyOwn")
+    path.rename(tmp_path / "Other.idp")
+    code = main(["solve", str(case_with_material(tmp_path, "Other.idp")), "--n", "4",
+                 "--results", str(tmp_path / "results")])
+    err = capsys.readouterr().err.strip().splitlines()
+    assert code == 2
+    assert len(err) == 1 and str(tmp_path / "Other.idp") in err[0] and "'MyOwn'" in err[0] and "'Other'" in err[0], err
+    assert not (tmp_path / "results").exists()
+
+
+# Data FreeFEM cannot read or that material.idp refuses: each ends with exit 2 and one line
+# naming the file and the entry, before anything is meshed or solved.
+BAD_DATA = {
+    "nan": ([("[[166e9, 77e9,", "[[nan, 77e9,")], "", "materialC entry C11 = nan is not a finite number"),
+    "overflow": ([("[[166e9, 77e9,", "[[1e999, 77e9,")], "", "materialC entry C11 = 1e999 is not a finite number"),
+    "negative": ([("[[166e9, 77e9,", "[[-166e9, 77e9,")], "", "(C11 = -1.66e+11)"),
+    "missing": ([], "materialK", "conductivity k is missing (define macro materialK"),
+}
+
+
+@pytest.mark.parametrize("case", BAD_DATA)
+def test_invalid_material_data_is_bad_input_named_before_anything_runs(case, tmp_path, capsys):
+    edits, drop, message = BAD_DATA[case]
+    path = variant(tmp_path, "Bad", *edits, drop=drop)
+    code = main(["solve", str(case_with_material(tmp_path, "Bad.idp")), "--n", "4",
+                 "--results", str(tmp_path / "results")])
+    err = capsys.readouterr().err.strip().splitlines()
+    assert code == 2
+    assert len(err) == 1 and err[0].startswith(f"error: invalid material file {path}: ") and message in err[0], err
+    assert not (tmp_path / "results").exists()
 
 
 def test_thermal_expansion_gives_m_equal_to_c_alpha(tmp_path):

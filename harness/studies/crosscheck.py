@@ -22,7 +22,8 @@ from harness.fields import Fields, read_fields
 from harness.layout import Layout
 from harness.pipeline import announce
 from harness.norm_table import MEASURE
-from harness.peer import material_values, pressed_depth, problem, require_getfem, run_peer
+from harness.materials import values as material_values
+from harness.peer import pressed_depth, problem, require_getfem, run_peer
 from harness.record import RunRecord
 from harness.scene import Scene, load_scene
 
