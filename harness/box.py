@@ -15,6 +15,7 @@ from typing import Any
 
 import numpy as np
 
+from harness.electrodes import Part
 from harness.errors import MeshError, SceneError
 from harness.schema import ROLE_LABELS
 
@@ -68,6 +69,20 @@ class Box:
                 return patch.role
         raise MeshError(f"face {name}: no patch contains the triangle at {tuple(np.round(centroid, 6))}: "
                         "are the patch edges on the mesh's grid lines?")
+
+    def parts(self) -> tuple[Part, ...]:
+        """Each face's patches as closed extents, named as the case file gives them."""
+        out = []
+        for name, patches in self.faces.items():
+            axis = "xyz".index(name[0])
+            at = 0.0 if name[1] == "0" else self.lengths[axis]
+            others = [i for i in range(3) if i != axis]
+            for p in patches:
+                lo, hi = [at] * 3, [at] * 3
+                lo[others[0]], hi[others[0]], lo[others[1]], hi[others[1]] = p.a0, p.a1, p.b0, p.b1
+                out.append(Part(f"geometry.{name} [{p.a0:g}, {p.a1:g}] x [{p.b0:g}, {p.b1:g}]", p.role,
+                                tuple(lo), tuple(hi)))
+        return tuple(out)
 
     def cuts(self, axis: int) -> list[float]:
         """The coordinates along `axis` where a patch starts or ends, with the box's own

@@ -21,6 +21,7 @@ import gmsh
 import numpy as np
 
 from harness.contract import ROLE_LABELS
+from harness.electrodes import Part
 from harness.errors import SceneError
 from harness.gmsh_api import session
 
@@ -45,6 +46,15 @@ class GmshGeometry:
     # The coarsest mesh's vertices, edges, (3D: faces,) cells: the guards' node counts.
     coarsest_counts: tuple[int, ...] = ()
     coarsest_min_cell: float = math.inf  # its smallest triangle's area (2D) [m^2]
+    # Each physical group's corner points (gmsh's points in the closure of its entities).
+    corners: tuple[tuple[str, tuple[tuple[float, ...], ...]], ...] = ()
+
+    def parts(self) -> tuple[Part, ...]:
+        """Each part's corner points, for the electrode check (harness/electrodes.py): in a
+        drawing whose parts share their end points, parts touch exactly where they share one."""
+        roles = self.role_of_name
+        return tuple(Part(f"{self.file.name}: {name!r}", roles[name], p, p) for name, points in self.corners
+                     for p in points if name in roles)
 
     @property
     def role_of_name(self) -> dict[str, str]:
@@ -153,8 +163,8 @@ def parse_gmsh(table: dict[str, Any], case_dir: Path, levels: list[int], effects
         raise SceneError("geometry.roles: the contact part is empty (no name maps to role contact) but effect "
                          "'contact' is on")
     coarsest = table["coarsest"] or min(levels)
-    found, bounds, contact, counts, smallest = read_geo(file, dimension, coarsest,
-                                                        [n for n, r in roles.items() if r == "contact"])
+    found, bounds, contact, counts, smallest, corners = read_geo(file, dimension, coarsest,
+                                                                 [n for n, r in roles.items() if r == "contact"])
     facet = "curve" if dimension == 2 else "surface"
     for name in found:
         if name not in roles:
@@ -167,14 +177,16 @@ def parse_gmsh(table: dict[str, Any], case_dir: Path, levels: list[int], effects
         raise SceneError(f"{file.name}: the contact part is empty (no {facet} in it)")
     return GmshGeometry(file=file, dimension=dimension, roles=tuple(roles.items()), levels=table["levels"],
                         coarsest=coarsest, bounds=bounds, contact=contact, coarsest_counts=counts,
-                        coarsest_min_cell=smallest)
+                        coarsest_min_cell=smallest, corners=corners)
 
 
 def read_geo(file: Path, dimension: int, coarsest: int, contact_names: list[str]) -> tuple[
-        dict[str, list[int]], tuple[float, ...], tuple[tuple[tuple[float, ...], ...], ...], tuple[int, ...], float]:
+        dict[str, list[int]], tuple[float, ...], tuple[tuple[tuple[float, ...], ...], ...], tuple[int, ...], float,
+        tuple[tuple[str, tuple[tuple[float, ...], ...]], ...]]:
     """The names of the file's physical groups of dimension d - 1 (with their entities),
     its bounding box, the contact entities' facets, the coarsest level's mesh's counts
-    of vertices, edges, (faces,) cells (h = 1/coarsest) and (2D) its smallest triangle's area."""
+    of vertices, edges, (faces,) cells (h = 1/coarsest), (2D) its smallest triangle's area
+    and each group's corner points."""
     with session():
         try:
             gmsh.open(str(file))
@@ -195,6 +207,7 @@ def read_geo(file: Path, dimension: int, coarsest: int, contact_names: list[str]
             if entities:
                 found.setdefault(name, []).extend(entities)
         bounds = tuple(float(b) for b in gmsh.model.getBoundingBox(-1, -1))
+        corners = tuple((name, corner_points(dimension, tags)) for name, tags in found.items())
         entities = [e for name in contact_names for e in found.get(name, [])]
         gmsh.option.setNumber("Mesh.MeshSizeMax", 1.0 / coarsest)
         try:
@@ -204,7 +217,15 @@ def read_geo(file: Path, dimension: int, coarsest: int, contact_names: list[str]
         counts = simplex_counts(dimension)
         smallest = smallest_triangle() if dimension == 2 else math.inf
         contact = contact_facets(dimension, entities) if entities else ()
-    return found, bounds, contact, counts, smallest
+    return found, bounds, contact, counts, smallest, corners
+
+
+def corner_points(dimension: int, entities: list[int]) -> tuple[tuple[float, ...], ...]:
+    """The coordinates of gmsh's points in the closure of the entities (of dimension d - 1)."""
+    closure = gmsh.model.getBoundary([(dimension - 1, e) for e in entities], combined=False, oriented=False,
+                                     recursive=True)
+    tags = sorted({tag for dim, tag in closure if dim == 0})
+    return tuple(tuple(float(x) for x in gmsh.model.getValue(0, tag, [])[:dimension]) for tag in tags)
 
 
 def smallest_triangle() -> float:

@@ -10,6 +10,7 @@ from dataclasses import dataclass
 from pathlib import Path
 from typing import Any, Iterable
 
+from harness.electrodes import check_electrodes
 from harness.errors import SceneError
 from harness.petsc_plugin import default_options, factorising, multigrid
 from harness.box import Box, parse_box
@@ -171,6 +172,8 @@ def load_scene(path: Path, overrides: Iterable[str] = ()) -> Scene:
         if is_material_path(table["scene"]["material"]):  # relative to the case file, as a .geo
             table["scene"]["material"] = str((path.parent / table["scene"]["material"]).resolve())
         geometry = parse_any_geometry(table, path.parent)
+        if "piezoelectric" in table["scene"]["effects"]:
+            check_electrodes(geometry.parts(), max(geometry.width, geometry.height))
         check_poling(table["scene"]["poling_axis"], getattr(geometry, "dimension", 2))
         check_expect(table["expect"])
     except SceneError as exc:

@@ -7,6 +7,7 @@ from typing import Any
 
 import numpy as np
 
+from harness.electrodes import Part
 from harness.errors import SceneError
 from harness.schema import ROLE_LABELS
 
@@ -51,6 +52,15 @@ class Geometry:
                 on |= (np.abs(points[:, 1] - y) < 1e-12 * max(1.0, self.height)) & (points[:, 0] >= seg.x0 - 1e-12) \
                     & (points[:, 0] <= seg.x1 + 1e-12)
         return on
+
+    def parts(self) -> tuple[Part, ...]:
+        """Each segment and side as a closed extent, named as the case file gives it."""
+        w, h = self.width, self.height
+        out = [Part(f"geometry.{name} [{s.x0:g}, {s.x1:g}]", s.role, (s.x0, y), (s.x1, y))
+               for name, side, y in (("bottom", self.bottom, 0.0), ("top", self.top, h)) for s in side]
+        out += [Part("geometry.left", self.left, (0.0, 0.0), (0.0, h)),
+                Part("geometry.right", self.right, (w, 0.0), (w, h))]
+        return tuple(out)
 
     def role_lengths(self) -> dict[str, float]:
         lengths = dict.fromkeys(ROLE_LABELS, 0.0)

@@ -86,3 +86,32 @@ def test_the_getfem_peer_imposes_the_electrode_potential_too(tmp_path):
     code = main(["crosscheck", str(DATA / "layer.toml"), str(DATA / "layer3d.toml"), "--levels", "2",
                  "--results", str(tmp_path)])
     assert code == ExitCode.OK
+
+
+def refused_before_meshing(capsys, tmp_path, case, *overrides: str) -> str:
+    """The one error line of a solve refused when the scene loads: nothing meshed or written."""
+    code = main(["solve", str(case), "--n", "2", "--results", str(tmp_path / "results"),
+                 *[arg for o in overrides for arg in ("--set", o)]])
+    err = capsys.readouterr().err.strip().splitlines()
+    assert code == ExitCode.INPUT
+    assert len(err) == 1 and err[0].startswith("error: ") and err[0].count("error") == 1, err
+    assert not (tmp_path / "results").exists()
+    return err[0]
+
+
+def test_a_rectangles_electrode_touching_a_clamp_is_found_at_load_with_its_point(tmp_path, capsys):
+    line = refused_before_meshing(capsys, tmp_path, DATA / "layer.toml", 'geometry.left="clamped"')
+    assert "geometry.top [0, 2]" in line and "clamped part geometry.left" in line and "at (0, 1)" in line, line
+
+
+def test_a_boxs_electrode_touching_a_ground_patch_is_found_at_load_with_its_point(tmp_path, capsys):
+    line = refused_before_meshing(capsys, tmp_path, DATA / "layer3d.toml", 'geometry.x1="ground"')
+    assert "electrode part geometry.z1" in line and "ground part geometry.x1" in line and "at (2, 0, 1)" in line, line
+
+
+def test_a_gmsh_electrode_touching_a_clamp_is_found_at_load_with_its_point(tmp_path, capsys):
+    strip = DATA.parents[1] / "cases" / "strip_actuator.toml"
+    roles = ('geometry.roles={mount="clamped", ground_electrode="ground", driven_electrode="electrode", '
+             'margin="clamped", base="free", tip="contact"}')
+    line = refused_before_meshing(capsys, tmp_path, strip, roles)
+    assert "'driven_electrode'" in line and "clamped part strip.geo: 'margin'" in line and "at (0.007, 0.0007)" in line

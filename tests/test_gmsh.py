@@ -236,7 +236,9 @@ def test_a_role_added_to_the_contract_flows_through_to_the_mesh_labels(tmp_path,
     in [geometry.roles] and written as its label, with no edit to the gmsh code."""
     monkeypatch.setitem(ROLE_LABELS, "electrode", 8)
     case = variant(tmp_path, {'top_free = "free"': 'top_free = "electrode"'})
-    mesh = build_mesh(load_scene(case).geometry, 2, tmp_path / "m")
+    # Not piezoelectric: on the paper's outline this part touches the clamped ends, two
+    # potentials at one point, which a piezoelectric scene refuses when it loads.
+    mesh = build_mesh(load_scene(case, ['scene.effects=["contact"]']).geometry, 2, tmp_path / "m")
     assert mesh.role_lengths["electrode"] == pytest.approx(2.0)
     tags = np.concatenate(meshio.read(mesh.path).cell_data["gmsh:physical"])
     assert 8 in set(tags.tolist())
