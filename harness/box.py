@@ -15,6 +15,7 @@ from typing import Any
 
 import numpy as np
 
+from harness.cell_size import Body
 from harness.electrodes import Part
 from harness.errors import MeshError, SceneError
 from harness.schema import ROLE_LABELS
@@ -69,6 +70,9 @@ class Box:
                 return patch.role
         raise MeshError(f"face {name}: no patch contains the triangle at {tuple(np.round(centroid, 6))}: "
                         "are the patch edges on the mesh's grid lines?")
+
+    def bodies(self) -> tuple[Body, ...]:
+        return (Body("the box", (0.0, 0.0, 0.0), self.lengths),)
 
     def parts(self) -> tuple[Part, ...]:
         """Each face's patches as closed extents, named as the case file gives them."""

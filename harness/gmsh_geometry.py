@@ -21,6 +21,7 @@ import gmsh
 import numpy as np
 
 from harness.contract import ROLE_LABELS
+from harness.cell_size import Body
 from harness.electrodes import Part
 from harness.errors import SceneError
 from harness.gmsh_api import session
@@ -48,6 +49,10 @@ class GmshGeometry:
     coarsest_min_cell: float = math.inf  # its smallest triangle's area (2D) [m^2]
     # Each physical group's corner points (gmsh's points in the closure of its entities).
     corners: tuple[tuple[str, tuple[tuple[float, ...], ...]], ...] = ()
+    body_boxes: tuple[Body, ...] = ()  # each surface (2D) or volume (3D) of the body
+
+    def bodies(self) -> tuple[Body, ...]:
+        return self.body_boxes
 
     def parts(self) -> tuple[Part, ...]:
         """Each part's corner points, for the electrode check (harness/electrodes.py): in a
@@ -163,8 +168,8 @@ def parse_gmsh(table: dict[str, Any], case_dir: Path, levels: list[int], effects
         raise SceneError("geometry.roles: the contact part is empty (no name maps to role contact) but effect "
                          "'contact' is on")
     coarsest = table["coarsest"] or min(levels)
-    found, bounds, contact, counts, smallest, corners = read_geo(file, dimension, coarsest,
-                                                                 [n for n, r in roles.items() if r == "contact"])
+    found, bounds, contact, counts, smallest, corners, bodies = read_geo(
+        file, dimension, coarsest, [n for n, r in roles.items() if r == "contact"])
     facet = "curve" if dimension == 2 else "surface"
     for name in found:
         if name not in roles:
@@ -177,16 +182,16 @@ def parse_gmsh(table: dict[str, Any], case_dir: Path, levels: list[int], effects
         raise SceneError(f"{file.name}: the contact part is empty (no {facet} in it)")
     return GmshGeometry(file=file, dimension=dimension, roles=tuple(roles.items()), levels=table["levels"],
                         coarsest=coarsest, bounds=bounds, contact=contact, coarsest_counts=counts,
-                        coarsest_min_cell=smallest, corners=corners)
+                        coarsest_min_cell=smallest, corners=corners, body_boxes=bodies)
 
 
 def read_geo(file: Path, dimension: int, coarsest: int, contact_names: list[str]) -> tuple[
         dict[str, list[int]], tuple[float, ...], tuple[tuple[tuple[float, ...], ...], ...], tuple[int, ...], float,
-        tuple[tuple[str, tuple[tuple[float, ...], ...]], ...]]:
+        tuple[tuple[str, tuple[tuple[float, ...], ...]], ...], tuple[Body, ...]]:
     """The names of the file's physical groups of dimension d - 1 (with their entities),
     its bounding box, the contact entities' facets, the coarsest level's mesh's counts
     of vertices, edges, (faces,) cells (h = 1/coarsest), (2D) its smallest triangle's area
-    and each group's corner points."""
+    each group's corner points and the body's pieces (harness/cell_size.py)."""
     with session():
         try:
             gmsh.open(str(file))
@@ -208,6 +213,7 @@ def read_geo(file: Path, dimension: int, coarsest: int, contact_names: list[str]
                 found.setdefault(name, []).extend(entities)
         bounds = tuple(float(b) for b in gmsh.model.getBoundingBox(-1, -1))
         corners = tuple((name, corner_points(dimension, tags)) for name, tags in found.items())
+        bodies = body_pieces(file.name, dimension)
         entities = [e for name in contact_names for e in found.get(name, [])]
         gmsh.option.setNumber("Mesh.MeshSizeMax", 1.0 / coarsest)
         try:
@@ -217,7 +223,20 @@ def read_geo(file: Path, dimension: int, coarsest: int, contact_names: list[str]
         counts = simplex_counts(dimension)
         smallest = smallest_triangle() if dimension == 2 else math.inf
         contact = contact_facets(dimension, entities) if entities else ()
-    return found, bounds, contact, counts, smallest, corners
+    return found, bounds, contact, counts, smallest, corners, bodies
+
+
+def body_pieces(file_name: str, dimension: int) -> tuple[Body, ...]:
+    """Each surface (2D) or volume (3D) by its physical name (or its tag) and bounding box."""
+    out = []
+    for _, tag in gmsh.model.getEntities(dimension):
+        groups = gmsh.model.getPhysicalGroupsForEntity(dimension, tag)
+        names = [gmsh.model.getPhysicalName(dimension, int(g)) for g in groups]
+        what = "surface" if dimension == 2 else "volume"
+        label = f"{file_name}: {what} {tag}" + (f" of {names[0]!r}" if names and names[0] else "")
+        box = gmsh.model.getBoundingBox(dimension, tag)
+        out.append(Body(label, tuple(float(x) for x in box[:dimension]), tuple(float(x) for x in box[3:3 + dimension])))
+    return tuple(out)
 
 
 def corner_points(dimension: int, entities: list[int]) -> tuple[tuple[float, ...], ...]:

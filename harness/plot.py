@@ -31,7 +31,10 @@ def plot_convergence(study: Study, target: Path) -> None:
         label = f"{error_label(name)}, slope {study.slopes[name]['all']:.2f}"
         ax.loglog(h, errors, style, label=label, markersize=4)
     add_slope_guide(ax, h, graded[error_column(TOTAL)].to_numpy(dtype=float))
-    ax.set_xlabel("h")
+    # Each level's tick names n and its real largest cell (model units): n is only a label.
+    ax.set_xticks(h, [f"1/{n}\n{size:.2g}" for n, size in zip(graded["n"], graded["h_max"])])
+    ax.minorticks_off()
+    ax.set_xlabel("h = 1/n (below it: the largest cell h_max, in the model's units)")
     ax.set_ylabel(f"error against h = 1/{study.reference}")
     ax.set_title(f"{study.scene.name}: convergence (initial guess {study.scene.initial_guess})")
     ax.grid(True, which="both", alpha=0.3)

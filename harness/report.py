@@ -58,6 +58,9 @@ def summary(study: Study) -> dict[str, Any]:
         "material": study.scene.material,
         "initial_guess": study.scene.initial_guess,
         "levels": [int(n) for n in study.table["n"]],
+        # Each level's largest cell edge in the model's units (n is a level's label, not a length).
+        "h_max": [float(h) for h in study.table["h_max"]],
+        "warnings": list(study.warnings),
         "reference_n": study.reference,
         "fields": list(study.fields),
         "slopes": study.slopes,
@@ -100,6 +103,6 @@ def cost_exponents(study: Study) -> dict[str, float]:
 
 
 def format_table(study: Study) -> str:
-    columns = ["n", "h", "dofs", "newton_iterations", "wall_s"]
+    columns = ["n", "h", "h_max", "dofs", "newton_iterations", "wall_s"]
     columns += [error_column(f) for f in error_names(study.fields)] + [f"order_{TOTAL}"]
     return study.table[columns].to_string(index=False, float_format=lambda v: f"{v:.4g}", na_rep="-")

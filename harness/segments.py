@@ -7,6 +7,7 @@ from typing import Any
 
 import numpy as np
 
+from harness.cell_size import Body
 from harness.electrodes import Part
 from harness.errors import SceneError
 from harness.schema import ROLE_LABELS
@@ -52,6 +53,9 @@ class Geometry:
                 on |= (np.abs(points[:, 1] - y) < 1e-12 * max(1.0, self.height)) & (points[:, 0] >= seg.x0 - 1e-12) \
                     & (points[:, 0] <= seg.x1 + 1e-12)
         return on
+
+    def bodies(self) -> tuple[Body, ...]:
+        return (Body("the rectangle", (0.0, 0.0), (self.width, self.height)),)
 
     def parts(self) -> tuple[Part, ...]:
         """Each segment and side as a closed extent, named as the case file gives it."""

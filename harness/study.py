@@ -3,12 +3,14 @@
 from __future__ import annotations
 
 import math
+import sys
 import time
 from dataclasses import dataclass, field
 from typing import Mapping
 
 import pandas as pd
 
+from harness.cell_size import h_max, thin_warnings
 from harness.engine import BackgroundMeshes, Progress, run_levels, runs_of, stderr_line
 from harness.errors import RunError
 from harness.fields import Fields, read_fields
@@ -31,6 +33,8 @@ class Study:
     wall_s: float
     # Each level's solution.vtu, parsed once for the errors and reused by the checks.
     solutions: dict[int, Fields] = field(default_factory=dict, repr=False, compare=False)
+    # Levels too coarse for a body's thinnest section (harness/cell_size.py), one line each.
+    warnings: tuple[str, ...] = ()
 
     @property
     def reference(self) -> int:
@@ -70,7 +74,11 @@ def run_study(
     fields = tuple(f for f in FIELD_NAMES if f in (runs[levels[-1]].record.fields or FIELD_NAMES))
     solutions = {n: read_fields(run.solution) for n, run in runs.items()}
     table = error_table(runs, fields, solutions)
-    return Study(scene, fields, table, slopes(table, fields), runs, time.perf_counter() - start, solutions)
+    warnings = tuple(line for n, f in sorted(solutions.items())
+                     for line in thin_warnings(scene.geometry.bodies(), n, f.points, f.cells))
+    for line in warnings:
+        print(f"warning: {line}", file=sys.stderr, flush=True)
+    return Study(scene, fields, table, slopes(table, fields), runs, time.perf_counter() - start, solutions, warnings)
 
 
 def error_table(runs: dict[int, RunResult], fields: tuple[str, ...],
@@ -91,6 +99,7 @@ def error_table(runs: dict[int, RunResult], fields: tuple[str, ...],
         row = {
             "n": n,
             "h": 1.0 / n,
+            "h_max": h_max(parsed[n].points, parsed[n].cells),  # the real largest cell, in model units
             "dofs": record.dofs,
             "newton_iterations": record.newton_iterations,
             "wall_s": record.wall_s,
