@@ -43,17 +43,18 @@ def add_case(parser: argparse.ArgumentParser, optional: bool = False) -> None:
     else:
         parser.add_argument("case", type=Path, help="case file, e.g. cases/paper.toml")
     parser.add_argument("--set", dest="overrides", action="append", default=[], metavar="KEY=VALUE",
-                        help="override a case-file value, e.g. contact.S=0 (repeatable)")
+                        help="change one value of the case file for this run, e.g. --set contact.S=0 (repeatable)")
 
 
 def add_levels(parser: argparse.ArgumentParser, default: tuple[int, ...] | None = None,
                what: str = "the case's") -> None:
     parser.add_argument("--levels", type=level_list, default=default,
-                        help=f"comma-separated n = 1/h (default: {what})")
+                        help=f"the levels to run, comma-separated, e.g. 2,4,8: level n has cells of about 1/n in the "
+                        f"model's units (default: {what})")
 
 
 def add_jobs(parser: argparse.ArgumentParser, default: int | None = None) -> None:
-    parser.add_argument("--jobs", type=positive_int, default=default or os.cpu_count() or 1, help="parallel runs")
+    parser.add_argument("--jobs", type=positive_int, default=default or os.cpu_count() or 1, help="how many levels may run at the same time (default: the number of cores)")
 
 
 def add_common(parser: argparse.ArgumentParser, under: str = "") -> None:
@@ -95,5 +96,5 @@ def layout_of(args: argparse.Namespace) -> Layout:
 
 
 def add_effects(parser: argparse.ArgumentParser) -> None:
-    parser.add_argument("--effects", type=name_list, help="comma-separated effects, replacing the case's "
-                        "(e.g. piezoelectric,contact,friction,electric_contact)")
+    parser.add_argument("--effects", type=name_list, help="the physics to switch on, comma-separated, in place of "
+                        "the case's scene.effects (e.g. piezoelectric,contact,friction,electric_contact)")

@@ -17,26 +17,45 @@ from harness.arguments import Parser
 from harness.contract import ExitCode
 from harness.faults import guarded, report
 
-# Subcommand -> its one-line help (the module's own docstring says the rest).
+# Subcommand -> its one-line help (the module's own docstring says the rest), grouped by the
+# task each serves (the top-level help lists them so).
+TASKS: dict[str, tuple[str, ...]] = {
+    "your own part (a case file of yours)": ("solve", "convergence"),
+    "checking the scheme": ("verify", "scenes", "stress", "branches", "crosscheck"),
+    "what it costs and how far it scales": ("cost", "bench", "solvers", "scale"),
+}
 STUDIES: dict[str, str] = {
-    "convergence": "run every level and measure E^h and its slope",
-    "solve": "solve one level and summarise run.json",
+    "convergence": "solve every level of a case; the error of each against the finest, and its slope",
+    "solve": "solve one level of a case and print its results and physical checks",
     "scenes": "a convergence study of every scene in cases/ and one summary table",
     "stress": "the stress suite: every case of cases/hard/, classified, with physical checks",
     "branches": "the solution branches of the paper's scene from four starts",
-    "verify": "manufactured-solution errors and the three-grid GCI",
+    "verify": "true errors against exact (manufactured) solutions, and the Grid Convergence Index",
     "cost": "what accuracy costs: the cost-accuracy frontier of a scene",
     "bench": "repeated timings (finest level, sweep, whole process), medians and spread",
     "solvers": "the solver table: every linear solver on the same levels, medians",
     "crosscheck": "FreeFEM against the GetFEM peer, level by level, field by field",
-    "scale": "past one machine: a solve on 1 and 2 MPI ranks, a study on one worker and on Dask",
+    "scale": "past one machine: a solve on 1 and 2 MPI ranks, a study on a Dask cluster",
 }
+
+
+def overview() -> str:
+    """The top-level help: the subcommands by the task they serve."""
+    lines = ["Thermo-electro-elastic contact, solved with FreeFEM and checked.", ""]
+    for task, names in TASKS.items():
+        lines.append(f"{task}:")
+        lines += [f"  {name:<12} {STUDIES[name]}" for name in names]
+    lines += ["", "Start with: python -m harness convergence my_part.toml  (docs/geometry.md: your own part)",
+              "Each command's own help: python -m harness COMMAND --help"]
+    return "\n".join(lines)
 
 
 def parser(chosen: str | None) -> Parser:
     """The command line; only `chosen`'s plug-in adds its arguments (None: none, for --help)."""
-    top = Parser(prog="python -m harness", description=__doc__.splitlines()[0])
-    commands = top.add_subparsers(dest="command", required=True, parser_class=Parser, metavar="STUDY")
+    top = Parser(prog="python -m harness", usage="python -m harness COMMAND [options]", description=overview(),
+                 formatter_class=argparse.RawDescriptionHelpFormatter)
+    commands = top.add_subparsers(dest="command", required=True, parser_class=Parser, metavar="COMMAND",
+                                  help=argparse.SUPPRESS)
     for name, text in STUDIES.items():
         sub = commands.add_parser(name, help=text, description=text,
                                   formatter_class=argparse.RawDescriptionHelpFormatter)

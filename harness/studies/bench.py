@@ -1,4 +1,4 @@
-"""A benchmark, not a test (issue 5): each measurement several times, medians and spread.
+"""A benchmark, not a test: each measurement several times, medians and spread.
 
     python -m harness bench cases/paper.toml [--repeats 5] [--levels 2,...,64]
         [--max-load 1.2] [--wait-s 1200] [--results results/bench]
@@ -17,11 +17,11 @@ Measurements, each repeated:
   startup  FreeFEM running an empty script;
   process  `python -m harness solve CASE --n FINEST --force` as a whole process from nothing
            (imports, the chain below, the report), beside its own FreeFEM run of the finest
-           level: the start-up overhead of issue 13.
+           level: the harness's own start-up overhead.
 Ratios per repetition: sweep / finest level within that sweep, and newton_over_linear of
 the finest level (run.json: Newton wall time over one bulk assembly plus one
 factorisation, same run). The GetFEM implementation of the same scheme took 11.6 s for
-the h = 1/64 level on this kind of machine (issue 5).
+the h = 1/64 level on this kind of machine.
 
 Before starting, the benchmark waits (up to --wait-s) for the 1-minute load average to
 fall below --max-load, and records the load before and after: on a shared machine a
@@ -238,7 +238,7 @@ PROCESS_NOTE = """
 (a fresh results folder: every mesh, the chain of levels below, the report and checks), over
 its own FreeFEM run of the finest level (`finest_freefem_s`: run.json's wall_s, from its
 launch to its exit less the time it sat ready, waiting for the state of the level below,
-`finest_waited_s`). Issue 23's goal: `process_over_finest` at most {goal}. The difference
+`finest_waited_s`). The goal: `process_over_finest` at most {goal}. The difference
 `process_s - finest_freefem_s` is, on the critical path: Python's start-up and imports
 (`imports_s`, timed as a process of its own), the meshes and launches before the finest
 level's FreeFEM starts (its own mesh: `finest_mesh_s`), `finest_waited_s` (the chain below
@@ -264,11 +264,11 @@ MEASUREMENTS = ("startup", "finest", "solvers", "cold", "sweep", "cli", "process
 def add_arguments(parser: argparse.ArgumentParser) -> None:
     add_case(parser)
     add_levels(parser, what="the case's: the sweep's levels")
-    parser.add_argument("--repeats", type=positive_int, default=5)
+    parser.add_argument("--repeats", type=positive_int, default=5, help="how many times each measurement is repeated (default: 5)")
     parser.add_argument("--only", type=name_list, default=list(MEASUREMENTS),
                         help=f"comma-separated measurements ({', '.join(MEASUREMENTS)})")
-    parser.add_argument("--max-load", type=float, default=1.2, help="wait for a 1-min load below this")
-    parser.add_argument("--wait-s", type=float, default=1200, help="at most this long")
+    parser.add_argument("--max-load", type=float, default=1.2, help="before starting, wait until the 1-minute load average is below this (default: 1.2)")
+    parser.add_argument("--wait-s", type=float, default=1200, help="wait at most this many seconds for that load (default: 1200)")
     add_results(parser, under="bench")
     add_memory_override(parser)
 

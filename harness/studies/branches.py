@@ -1,5 +1,5 @@
 """`python -m harness branches [CASE]` (`make branches`): the solution branches of the paper's
-scene (issue 4), into results/branches/; of any other case (a gmsh scene, say) into
+scene, into results/branches/; of any other case (a gmsh scene, say) into
 results/branches_<case>/.
 
 The benchmark's data break the paper's uniqueness condition, and Newton reaches different

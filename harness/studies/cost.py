@@ -1,4 +1,4 @@
-"""What accuracy costs in time (issue 5): the cost-accuracy frontier of a scene.
+"""What accuracy costs in time: the cost-accuracy frontier of a scene.
 
     python -m harness cost cases/paper.toml [--levels 2,4,...] [--reference P2:64]
         [--discretisations P1,P2,P1-rtol] [--scaling-levels 128,256] [--set k=v]

@@ -5,7 +5,7 @@ Krylov iterations, per-rank memory, agreement), and the stress suite in this pro
 clusters of 1 and 2 workers (each started and warmed before it is timed; median of several
 runs; identical summaries).
 
-Small sizes by default (CPU is shared while developing); the issue's sizes on an idle
+Small sizes by default (CPU is shared while developing); the full sizes on an idle
 machine: `make scale SCALE_FLAGS="--mpi-levels 64,256 --mpi-3d-levels 8,16 --stress-levels="`
 (each stress case on its own levels). Every run is forced (no cache reuse), so the times
 are the runs' own.

@@ -1,4 +1,4 @@
-"""`python -m harness stress` (`make stress`): the stress suite of issue 4, into results/stress/.
+"""`python -m harness stress` (`make stress`): the stress suite, into results/stress/.
 
 Every case file in cases/hard/ is the paper's scene with one thing made hard; its [expect]
 section says what (`hard_because`), what the case must show (`requirement`), the outcome
