@@ -32,8 +32,8 @@ class Body:
 
 def h_max(points: np.ndarray, cells: np.ndarray) -> float:
     """The longest edge of any cell."""
-    corners = points[cells]  # (M, d + 1, d)
-    return float(max(np.linalg.norm(corners[:, i] - corners[:, j], axis=1).max()
+    # Edge by edge: a 3D level of millions of cells never holds all its corners at once.
+    return float(max(np.linalg.norm(points[cells[:, i]] - points[cells[:, j]], axis=1).max()
                      for i, j in itertools.combinations(range(cells.shape[1]), 2)))
 
 
@@ -42,14 +42,15 @@ def cells_through(points: np.ndarray, cells: np.ndarray, body: Body) -> tuple[fl
     lo, hi = np.array(body.lo), np.array(body.hi)
     axis = int(np.argmin(hi - lo))
     thickness = float(hi[axis] - lo[axis])
-    corners = points[cells][:, :, :len(lo)]
-    centroids = corners.mean(axis=1)
     slack = 1e-9 * float((hi - lo).max())
-    inside = np.all((centroids >= lo - slack) & (centroids <= hi + slack), axis=1)
+    inside = np.ones(len(cells), dtype=bool)
+    for k in range(len(lo)):  # the centroid inside the box, one coordinate at a time
+        centroid = points[:, k][cells].mean(axis=1)
+        inside &= (centroid >= lo[k] - slack) & (centroid <= hi[k] + slack)
     if not inside.any():
         return float("inf"), axis, thickness
-    extent = corners[inside, :, axis].max(axis=1) - corners[inside, :, axis].min(axis=1)
-    return thickness / float(extent.max()), axis, thickness
+    along = points[:, axis][cells[inside]]
+    return thickness / float((along.max(axis=1) - along.min(axis=1)).max()), axis, thickness
 
 
 def thin_warnings(bodies: tuple[Body, ...], n: int, points: np.ndarray, cells: np.ndarray) -> list[str]:
