@@ -62,3 +62,12 @@ def test_cells_through_a_layered_strip_count_its_layers():
         count, axis, thickness = cells_through(points, np.array(cells), Body("strip", (0.0, 0.0), (10.0, 1.0)))
         assert (count, axis, thickness) == (pytest.approx(k), 1, 1.0)
         assert h_max(points, np.array(cells)) == pytest.approx(math.sqrt(2) / k)
+
+
+def test_solve_warns_of_a_level_with_one_cell_through_the_thickness(capsys, tmp_path, paper_case):
+    code = main(["solve", str(paper_case), "--n", "2", "--results", str(tmp_path), "--freefem", str(STUB),
+                 "--set", "loads.traction_y=-12.5", "--set", "geometry.height=0.5"])
+    err = capsys.readouterr().err.splitlines()
+    assert code == 0, err
+    assert [line for line in err if line.startswith("warning: level n=2: 1.0 cell(s) through the thinnest section "
+                                                   "of the rectangle")], err

@@ -29,4 +29,4 @@ def test_a_study_run_from_another_directory_writes_only_there(capsys, monkeypatc
     assert code == 0
     assert sorted(p.name for p in here.iterdir()) == ["results"]
     assert (here / "results" / name / "convergence.csv").is_file()
-    assert out[0] == f"harness {REPO / 'harness'}; results in {here / 'results'}"
+    assert out[0] == f"harness {REPO / 'harness'}; results in {here.resolve() / 'results'}"

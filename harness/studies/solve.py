@@ -4,11 +4,14 @@ is warm-started from them), its run.json summarised and its physical checks prin
 from __future__ import annotations
 
 import argparse
+import sys
 from pathlib import Path
 from typing import Any
 
 from harness.arguments import add_case, add_common, add_effects, layout_of, positive_int
+from harness.cell_size import thin_warnings
 from harness.engine import InlineMeshes, quiet, run_levels, runs_of
+from harness.fields import Fields, read_fields
 from harness.layout import Layout
 from harness.pipeline import Guarded, Plan, run_pipeline, scene_of
 from harness.record import RunRecord
@@ -43,11 +46,16 @@ def solve(scene: Scene, n: int, layout: Layout, force: bool, ignore_memory: bool
         meshes = InlineMeshes(scene, [*below, n], layout)
         return runs_of(run_levels(scene, meshes, layout, force=force, progress=quiet))[n]
 
+    parsed: dict[int, Fields] = {}
+
     def report(result: RunResult) -> None:
         print(describe_run(scene.name, result.record, result.directory, result.reused))
+        parsed[n] = fields = read_fields(result.solution)
+        for line in thin_warnings(scene.geometry.bodies(), n, fields.points, fields.cells):
+            print(f"warning: {line}", file=sys.stderr)
 
     def verdict(result: RunResult) -> str | None:
-        failed = failed_checks(print_checks(scene, [result]))
+        failed = failed_checks(print_checks(scene, [result], parsed))
         return f"{scene.name} n={n}: {failed}" if failed else None
 
     return run_pipeline(plan, runs, report, verdict)
