@@ -54,7 +54,8 @@ def add_levels(parser: argparse.ArgumentParser, default: tuple[int, ...] | None 
 
 
 def add_jobs(parser: argparse.ArgumentParser, default: int | None = None) -> None:
-    parser.add_argument("--jobs", type=positive_int, default=default or os.cpu_count() or 1, help="how many levels may run at the same time (default: the number of cores)")
+    parser.add_argument("--jobs", type=positive_int, default=default or os.cpu_count() or 1,
+                        help="how many levels may run at the same time (default: the number of cores)")
 
 
 def add_common(parser: argparse.ArgumentParser, under: str = "") -> None:

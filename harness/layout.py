@@ -34,11 +34,14 @@ class Layout:
     def failed_dir(self, case: str, n: int) -> Path:
         return self.case_dir(case) / f"n{n}.failed"
 
+    def material_library(self) -> Path:
+        return self.freefem / "materials"
+
     def material_file(self, material: str) -> Path:
         """A library name's file in freefem/materials/, or the path a scene gave."""
         from harness.materials import file_of
 
-        return file_of(material, self.freefem)
+        return file_of(material, self.material_library())
 
     def material_reduction_file(self) -> Path:
         """Derives the plane-strain constants the scheme uses from a material's 3D set."""

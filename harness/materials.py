@@ -46,8 +46,8 @@ CONSTANTS = ("f11", "f13", "f33", "f44", "e31", "e33", "e15", "b11", "b33", "m11
 CONSTANTS_3D = ("fC12", "fC22", "fC23", "f2323", "f1212", "e24", "e32", "b22", "m22", "p2", "k22")
 
 
-def file_of(material: str, freefem_dir: Path) -> Path:
-    return Path(material) if is_material_path(material) else freefem_dir / "materials" / f"{material}.idp"
+def file_of(material: str, library: Path) -> Path:
+    return Path(material) if is_material_path(material) else library / f"{material}.idp"
 
 
 def check(path: Path, reduction: Path) -> None:

@@ -71,7 +71,7 @@ def check_solver_files(scene: Scene, layout: Layout) -> None:
     invalid (harness/materials.py) or the solver scripts are missing."""
     wanted = layout.material_file(scene.material)
     if not wanted.is_file():
-        library = layout.material_file("-").parent
+        library = layout.material_library()
         available = ", ".join(sorted(p.stem for p in library.glob("*.idp"))) or "none"
         raise SceneError(f"{scene.source}: unknown material {scene.material!r}: no file {wanted} "
                          f"(available: {available} in {library}, or give a path to a .idp file)")

@@ -264,11 +264,14 @@ MEASUREMENTS = ("startup", "finest", "solvers", "cold", "sweep", "cli", "process
 def add_arguments(parser: argparse.ArgumentParser) -> None:
     add_case(parser)
     add_levels(parser, what="the case's: the sweep's levels")
-    parser.add_argument("--repeats", type=positive_int, default=5, help="how many times each measurement is repeated (default: 5)")
+    parser.add_argument("--repeats", type=positive_int, default=5,
+                        help="how many times each measurement is repeated (default: 5)")
     parser.add_argument("--only", type=name_list, default=list(MEASUREMENTS),
                         help=f"comma-separated measurements ({', '.join(MEASUREMENTS)})")
-    parser.add_argument("--max-load", type=float, default=1.2, help="before starting, wait until the 1-minute load average is below this (default: 1.2)")
-    parser.add_argument("--wait-s", type=float, default=1200, help="wait at most this many seconds for that load (default: 1200)")
+    parser.add_argument("--max-load", type=float, default=1.2,
+                        help="before starting, wait until the 1-minute load average is below this (default: 1.2)")
+    parser.add_argument("--wait-s", type=float, default=1200,
+                        help="wait at most this many seconds for that load (default: 1200)")
     add_results(parser, under="bench")
     add_memory_override(parser)
 

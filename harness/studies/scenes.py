@@ -46,7 +46,9 @@ def scene_row(study: Study) -> dict[str, Any]:
 
 
 def add_arguments(parser: argparse.ArgumentParser) -> None:
-    parser.add_argument("--cases", type=Path, default=REPO / "cases", help="the folder whose case files (*.toml) are studied, one convergence study each (default: cases/)")
+    parser.add_argument("--cases", type=Path, default=REPO / "cases",
+                        help="the folder whose case files (*.toml) are studied, one convergence study each (default: "
+                        "cases/)")
     add_levels(parser, what="each scene's own")
     add_common(parser)
     add_cluster(parser)

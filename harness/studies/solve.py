@@ -22,7 +22,9 @@ from harness.scene import Scene
 
 def add_arguments(parser: argparse.ArgumentParser) -> None:
     add_case(parser)
-    parser.add_argument("--n", type=positive_int, required=True, help="the level to solve: cells of about 1/n in the model's units (the coarser levels of the case run first when it starts from them)")
+    parser.add_argument("--n", type=positive_int, required=True,
+                        help="the level to solve: cells of about 1/n in the model's units (the coarser levels of the "
+                        "case run first when it starts from them)")
     add_effects(parser)
     add_common(parser)
 

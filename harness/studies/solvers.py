@@ -176,11 +176,15 @@ def coarse_space_list(text: str) -> list[str]:
 
 def add_arguments(parser: argparse.ArgumentParser) -> None:
     parser.add_argument("--points", type=lambda s: [point(p) for p in s.split(",")],
-                        default=[("paper", 64), ("paper3d", 16)], help="the scenes of cases/ and levels to time, as CASE:N,... (default: paper:64,paper3d:16)")
-    parser.add_argument("--repeats", type=positive_int, default=3, help="how many times each level is rerun and timed per solver (default: 3)")
+                        default=[("paper", 64), ("paper3d", 16)],
+                        help="the scenes of cases/ and levels to time, as CASE:N,... (default: "
+                        "paper:64,paper3d:16)")
+    parser.add_argument("--repeats", type=positive_int, default=3,
+                        help="how many times each level is rerun and timed per solver (default: 3)")
     parser.add_argument("--only", type=solver_list, default=list(SOLVERS),
                         help=f"comma-separated solvers ({', '.join(SOLVERS)})")
-    parser.add_argument("--rank-point", type=point, default=("paper", 64), help="the scene of cases/ and level of the rank table, as CASE:N (default: paper:64)")
+    parser.add_argument("--rank-point", type=point, default=("paper", 64),
+                        help="the scene of cases/ and level of the rank table, as CASE:N (default: paper:64)")
     parser.add_argument("--ranks", type=lambda t: [positive_int(x) for x in t.split(",")], default=None,
                         help="comma-separated rank counts: the rank table alone (e.g. 1,2,4,8)")
     parser.add_argument("--coarse-spaces", type=coarse_space_list, default=["none", "nested"],

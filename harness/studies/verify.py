@@ -38,8 +38,11 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
     add_levels(parser, default=MMS_LEVELS, what="4,8,16,32; the manufactured cases'")
     parser.add_argument("--cases", type=name_list, default=[*MMS_CASES, *MMS_CASES_3D],
                         help="manufactured cases to run (bulk, contact, coulomb, wedge, bulk3d, contact3d; empty: none)")
-    parser.add_argument("--paper", type=Path, default=REPO / "cases" / "paper.toml", help="the case file whose three finest levels give the Grid Convergence Index table (default: cases/paper.toml)")
-    parser.add_argument("--skip-gci", action="store_true", help="run the manufactured solutions only, not the Grid Convergence Index table")
+    parser.add_argument("--paper", type=Path, default=REPO / "cases" / "paper.toml",
+                        help="the case file whose three finest levels give the Grid Convergence Index table (default: "
+                        "cases/paper.toml)")
+    parser.add_argument("--skip-gci", action="store_true",
+                        help="run the manufactured solutions only, not the Grid Convergence Index table")
     add_jobs(parser, default=2)
     add_common(parser)
 
