@@ -82,6 +82,10 @@ class RunRecord:
     heat_in_contact: float | None = None
     charge_in_contact: float | None = None
     checks: dict[str, Any] | None = None
+    # the recovery estimate of each field's error in its norm of E^h, and the field's own norm (estimator.idp)
+    estimator: dict[str, float] | None = None
+    estimator_norms: dict[str, float] | None = None
+    estimate_s: float | None = None
     freefem_version: str | None = None
     # -- the range of each scalar field the scene has ("min_" + name, "max_" + name)
     min_phi: float | None = None
@@ -91,6 +95,7 @@ class RunRecord:
     # -- manufactured solutions (IFMACRO(MMS)) and reference errors (IFMACRO(REFERENCE))
     mms_errors: dict[str, dict[str, float]] | None = None
     mms_norms: dict[str, dict[str, float]] | None = None
+    mms_measure_errors: dict[str, float] | None = None  # each field's true error in its norm of E^h
     reference_errors: dict[str, float] | None = None
     reference_norms: dict[str, float] | None = None
     reference: dict[str, Any] | None = None

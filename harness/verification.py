@@ -15,7 +15,7 @@ from harness.freefem import freefem_version
 from harness.layout import REPO, Layout
 from harness.norm_table import MMS_NORMS
 from harness.rates import slope_fit
-from harness.run import check_solver_files
+from harness.run import RunResult, check_solver_files
 from harness.scene import Scene
 
 MMS_CASES = {"bulk": REPO / "cases" / "mms" / "bulk.toml", "contact": REPO / "cases" / "mms" / "contact.toml",
@@ -36,17 +36,26 @@ def band(case: str, norm: str) -> tuple[float, float]:
     return (BANDS_3D if case in MMS_CASES_3D else BANDS)[norm]
 
 
-def mms_errors(scene: Scene, levels: Sequence[int], layout: Layout, jobs: int = 2, force: bool = False,
-               progress: Progress = stderr_line) -> pd.DataFrame:
-    """One row per level, field and norm: the error FreeFEM measured against the exact field,
-    and the exact field's own norm (run.json's mms_errors, mms_norms)."""
+def mms_runs(scene: Scene, levels: Sequence[int], layout: Layout, jobs: int = 2, force: bool = False,
+             progress: Progress = stderr_line) -> dict[int, RunResult]:
+    """The manufactured case's runs, by level."""
     if not scene.manufactured:
         raise RunError(f"{scene.source} has no [manufactured] solution")
     check_solver_files(scene, layout)
     freefem_version()
     meshes = InlineMeshes(scene, levels, layout).made()
-    runs = runs_of(run_levels(scene, meshes, layout, force=force, progress=progress,
+    return runs_of(run_levels(scene, meshes, layout, force=force, progress=progress,
                               chain=scene.initial_guess == "coarser", jobs=jobs))
+
+
+def mms_errors(scene: Scene, levels: Sequence[int], layout: Layout, jobs: int = 2, force: bool = False,
+               progress: Progress = stderr_line) -> pd.DataFrame:
+    """One row per level, field and norm: the error FreeFEM measured against the exact field,
+    and the exact field's own norm (run.json's mms_errors, mms_norms)."""
+    return error_table(scene, mms_runs(scene, levels, layout, jobs, force, progress))
+
+
+def error_table(scene: Scene, runs: dict[int, RunResult]) -> pd.DataFrame:
     rows = []
     for n, run in sorted(runs.items()):
         errors, norms = run.record.mms_errors, run.record.mms_norms
@@ -61,6 +70,22 @@ def mms_errors(scene: Scene, levels: Sequence[int], layout: Layout, jobs: int = 
     table = pd.DataFrame(rows)
     table["relative_error"] = table["error"] / table["exact_norm"]
     return table
+
+
+def effectivity_table(scene: Scene, runs: dict[int, RunResult]) -> pd.DataFrame:
+    """One row per level and field: the recovery estimate eta of the field's error in its norm
+    of E^h (freefem/estimator.idp), the true error in that norm against the exact field, and
+    the effectivity index eta / error (1: the estimate is exact)."""
+    rows = []
+    for n, run in sorted(runs.items()):
+        eta, error = run.record.estimator, run.record.mms_measure_errors
+        if not isinstance(eta, dict) or not isinstance(error, dict):
+            raise RunError(f"{run.directory}/run.json has no estimator/mms_measure_errors (freefem/estimator.idp)")
+        for field in scene.fields:
+            rows.append({"n": n, "h": 1.0 / n, "dofs": run.record.dofs, "field": field,
+                         "eta": float(eta[field]), "error": float(error[field]),
+                         "effectivity": float(eta[field]) / float(error[field])})
+    return pd.DataFrame(rows)
 
 
 def mms_rates(errors: pd.DataFrame) -> pd.DataFrame:

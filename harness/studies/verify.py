@@ -3,7 +3,9 @@ results/verification/.
 
 - Manufactured solutions (cases/mms/*.toml, harness/mms.py): true errors against the exact
   fields, per case, field and norm, with least-squares slopes and standard errors
-  (mms_levels.csv, mms.csv, mms.png). Expected: 2 in L2, 1 in the H1 seminorm.
+  (mms_levels.csv, mms.csv, mms.png). Expected: 2 in L2, 1 in the H1 seminorm. Beside
+  them the a posteriori estimate of each field's error and its effectivity index
+  (effectivity.csv; docs/adaptivity.md).
 - The paper's scene without a reference: three-grid observed order, Richardson value and
   GCI (harness/gci.py) of each field's error norm and of scalar outputs of run.json
   (results/paper/gci.csv; its finest triples again in gci.csv here).
@@ -25,7 +27,8 @@ from harness.pipeline import Guarded, Plan, run_pipeline
 from harness.plot import plot_mms
 from harness.scene import Scene, load_scene
 from harness.study import run_study
-from harness.verification import MMS_CASES, MMS_CASES_3D, MMS_LEVELS, MMS_LEVELS_3D, band, mms_errors, mms_rates
+from harness.verification import (MMS_CASES, MMS_CASES_3D, MMS_LEVELS, MMS_LEVELS_3D, band, effectivity_table,
+                                  error_table, mms_rates, mms_runs)
 from harness.writers import PRECISE_CSV_FORMAT, write_csv as write_table
 
 
@@ -55,11 +58,17 @@ def mms_scenes(cases: Sequence[str], levels: Sequence[int]) -> dict[str, tuple[S
 
 def verify_mms(scenes: dict[str, tuple[Scene, tuple[int, ...]]], layout: Layout, jobs: int,
                force: bool) -> pd.DataFrame:
-    tables = [mms_errors(scene, levels, layout, jobs, force).assign(case=c) for c, (scene, levels) in scenes.items()]
+    tables, estimates = [], []
+    for c, (scene, levels) in scenes.items():
+        runs = mms_runs(scene, levels, layout, jobs, force)
+        tables.append(error_table(scene, runs).assign(case=c))
+        estimates.append(effectivity_table(scene, runs).assign(case=c))
     errors = pd.concat(tables, ignore_index=True)
+    effectivity = pd.concat(estimates, ignore_index=True)
     rates = mms_rates(errors)
     out = layout.results / "verification"
     write_csv(errors[["case", *errors.columns.drop("case")]], out / "mms_levels.csv")
+    write_csv(effectivity[["case", *effectivity.columns.drop("case")]], out / "effectivity.csv")
     write_csv(rates, out / "mms.csv")
     plot_mms(errors, rates, out / "mms.png")
     print(rates.to_string(index=False, float_format=lambda v: f"{v:.4g}"))
