@@ -95,6 +95,13 @@ $(STAMP): $(VENV_STAMP) $(wildcard harness/*.py harness/studies/*.py)
 clean-runs:
 	find results -mindepth 2 -maxdepth 3 -type d \( -name 'n[0-9]*' -o -name meshes -o -name '.tmp-*' -o -name '.old-*' \) -exec rm -rf {} +
 
+# Adaptive refinement driven by the error estimate (docs/adaptivity.md): the paper's scene and
+# the strip actuator, each against its uniform levels, into results/adapt/<case>/.
+.PHONY: adapt
+adapt: $(STAMP) freefem
+	$(PY) -m harness adapt cases/paper.toml --steps 40 --max-dofs 30000
+	$(PY) -m harness adapt cases/strip_actuator.toml --steps 40 --max-dofs 30000
+
 # Verification beyond self-convergence (issue 6): true errors of the manufactured cases
 # (cases/mms/, h = 1/4 ... 1/32) and the three-grid GCI of the paper's scene (its runs are
 # reused when cached), into results/verification/ and results/paper/gci.csv.
