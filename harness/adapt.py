@@ -28,7 +28,8 @@ from harness import bisection
 from harness.engine import InlineMeshes, Progress, run_levels, runs_of
 from harness.errors import FieldsError, SceneError
 from harness.fields import Fields, read_fields
-from harness.gmsh_mesh import SimplexMesh, quality, write_msh
+from harness.gmsh_mesh import SimplexMesh, write_msh
+from harness.simplex import quality
 from harness.layout import Layout
 from harness.mesh import build_mesh
 from harness.norms import error_norms

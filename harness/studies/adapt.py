@@ -14,6 +14,7 @@ from __future__ import annotations
 
 import argparse
 import math
+import os
 import sys
 from pathlib import Path
 
@@ -106,7 +107,8 @@ def run(args: argparse.Namespace) -> int:
         window = later[later["dofs"] * 16 <= adaptation.reference.record.dofs]
         summary = {
             "case": scene.name, "steps": len(table), "bulk": args.bulk,
-            "reference": {"dofs": adaptation.reference.record.dofs, "mesh": str(adaptation.reference_mesh),
+            "reference": {"dofs": adaptation.reference.record.dofs,
+                          "mesh": os.path.relpath(adaptation.reference_mesh, out),
                           "estimate": adaptation.reference.record.estimator},
             "rate_in_dofs": {"optimal": 1.0 / scene.dimension,
                              "adaptive": {f: rate_in_dofs(window["dofs"], window[f"err_{f}"], scene.dimension) for f in fields},
