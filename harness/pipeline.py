@@ -5,7 +5,8 @@ Every study (harness/studies/) is this call with its own three functions:
     run_pipeline(plan, runs=..., report=..., verdict=...)
 
 - guards, before anything is meshed or run: the results folder can hold results, every
-  scene's warnings are printed, its levels are nested (when the study compares levels),
+  scene's warnings are printed, its levels are nested (when the study compares levels) and
+  enough for its slopes (guards.Slope),
   its finest levels fit in memory (unless overridden), and its meshes fit on the disk;
 - the transaction (harness/atomic.py): the directories the study writes hold its earlier
   complete output or its new one, never a mix, whatever fails or interrupts it;
@@ -24,7 +25,8 @@ from typing import Callable, Sequence, TypeVar
 from harness.atomic import StudyTransaction
 from harness.errors import VerdictError
 from harness.faults import check_results_root
-from harness.guards import check_memory, check_nested, geometry_depth, mesh_file_bytes, need_disk
+from harness.guards import (Slope, check_memory, check_nested, check_slope_levels, geometry_depth, mesh_file_bytes,
+                            need_disk)
 from harness.scene import Scene, load_scene
 
 R = TypeVar("R")
@@ -32,10 +34,12 @@ R = TypeVar("R")
 
 @dataclass(frozen=True)
 class Guarded:
-    """A scene a study will run, and its levels (the scene's own when empty)."""
+    """A scene a study will run, its levels (the scene's own when empty) and how many of them
+    its slopes need."""
 
     scene: Scene
     levels: tuple[int, ...] = ()
+    slope: Slope = Slope.NONE
 
     @property
     def chosen(self) -> tuple[int, ...]:
@@ -75,6 +79,8 @@ def check_guards(plan: Plan) -> None:
             print(f"warning: {warning}", file=sys.stderr)
         if plan.nested:
             check_nested(levels)
+        given = item.levels and tuple(item.levels) != tuple(scene.levels)
+        check_slope_levels(levels, item.slope, "--levels" if given else f"{scene.source} [study] levels")
         if not plan.ignore_memory:
             check_memory(scene.geometry.width, scene.geometry.height, levels, scene.effects, scene.element,
                          depth=geometry_depth(scene.geometry), factorises=scene.factorises,

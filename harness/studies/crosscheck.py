@@ -13,7 +13,7 @@ from pathlib import Path
 
 import pandas as pd
 
-from harness.arguments import add_common, level_list, name_list, positive_int
+from harness.arguments import add_common, name_list, positive_int, study_levels
 from harness.crosscheck import TOLERANCE, differences, integral_differences
 from harness.engine import InlineMeshes, quiet, run_levels, runs_of
 from harness.errors import Disagreement, FieldsError, RunError, SceneError
@@ -32,7 +32,7 @@ NORM_OF = {term.field: term.norm for term in MEASURE}  # V, W, Q: the columns re
 
 def add_arguments(parser: argparse.ArgumentParser) -> None:
     parser.add_argument("cases", type=Path, nargs="+", help="case files, e.g. cases/paper.toml")
-    parser.add_argument("--levels", type=level_list, help="levels n = 1/h (default: the case's up to 8 in 2D, 4 in 3D)")
+    parser.add_argument("--levels", type=study_levels, help="levels n = 1/h (default: the case's up to 8 in 2D, 4 in 3D)")
     parser.add_argument("--branches", type=name_list, help="starts to compare: zero, pressed (default: the case's own)")
     parser.add_argument("--set", dest="overrides", action="append", default=[], metavar="KEY=VALUE",
                         help="override a case value, e.g. --set contact.S=4 (repeatable)")
