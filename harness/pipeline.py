@@ -9,7 +9,8 @@ Every study (harness/studies/) is this call with its own three functions:
   enough for its slopes (guards.Slope),
   its finest levels fit in memory (unless overridden), and its meshes fit on the disk;
 - the transaction (harness/atomic.py): the directories the study writes hold its earlier
-  complete output or its new one, never a mix, whatever fails or interrupts it;
+  complete output or its new one, never a mix, whatever fails or interrupts it, and one
+  study at a time (a second is refused, exit 7 BUSY);
 - runs and report inside the transaction, the report written only when the runs finished;
 - the verdict after it: a failure message makes the command exit 1 (VERDICT) with that
   one `error:` line, after the report is safely written.
@@ -50,13 +51,16 @@ class Guarded:
 class Plan:
     """What a study guards and owns. `results`: the root it writes under; `scene_dirs`: the
     scene directories it writes a convergence report into; `outputs`: the directories whose
-    every file is its (tables, Markdown, plots); `nested`: whether it compares levels (a
-    convergence study), so they must be nested; `ignore_memory`: the memory guard's override."""
+    every file is its (tables, Markdown, plots); `locked`: directories its runs write into
+    that it does not own (`solve`'s scene: locked, not restored); `nested`: whether it
+    compares levels (a convergence study), so they must be nested; `ignore_memory`: the
+    memory guard's override."""
 
     results: Path
     guarded: tuple[Guarded, ...] = ()
     scene_dirs: tuple[Path, ...] = ()
     outputs: tuple[Path, ...] = ()
+    locked: tuple[Path, ...] = ()
     nested: bool = False
     ignore_memory: bool = False
 
@@ -98,9 +102,13 @@ def run_pipeline(plan: Plan, runs: Callable[[], R], report: Callable[[R], object
     """Guards, then the runs and the report inside one transaction, then the verdict: a
     message from `verdict` is raised as a VerdictError (exit 1), the report already written."""
     check_guards(plan)
-    with StudyTransaction(*plan.scene_dirs, outputs=plan.outputs):
+    transaction = StudyTransaction(*plan.scene_dirs, outputs=plan.outputs, locked=plan.locked)
+    with transaction:
         result = runs()
         report(result)
+    for path in transaction.swept_after:
+        print(f"warning: {path}: the temp dir of a run whose process died during the study (a killed Dask "
+              f"worker?), removed; its level was run again and the study is complete", file=sys.stderr)
     failure = verdict(result)
     if failure:
         raise VerdictError(failure)

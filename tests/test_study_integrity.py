@@ -5,8 +5,17 @@ runs are swept. Stand-in solver (tests/data/stub_freefem) throughout."""
 
 from __future__ import annotations
 
+import contextlib
+import os
+import signal
+import subprocess
+import sys
+import time
+from pathlib import Path
+
 import pytest
 
+from harness import atomic, cache
 from harness.cli import main
 from harness.contract import ExitCode
 from harness.layout import REPO
@@ -63,3 +72,122 @@ def test_a_manufactured_study_needs_two_levels_and_the_rule_is_one_table():
         check_slope_levels((8, 8), Slope.AGAINST_EXACT)
     with pytest.raises(SceneError, match="needs 3 distinct levels"):
         check_slope_levels((4, 8), Slope.AGAINST_FINEST)
+
+
+# ---- one writer per study directory --------------------------------------------------------
+
+def harness_process(results: Path, *argv: str) -> subprocess.Popen:
+    return subprocess.Popen([sys.executable, "-m", "harness", *argv, "--results", str(results),
+                             "--freefem", str(STUB)], cwd=REPO, stdout=subprocess.PIPE, stderr=subprocess.PIPE)
+
+
+def wait_for(condition, timeout: float = 60.0) -> None:
+    deadline = time.monotonic() + timeout
+    while not condition():
+        assert time.monotonic() < deadline, "timed out waiting"
+        time.sleep(0.05)
+
+
+def hung_study(results: Path, *extra: str) -> subprocess.Popen:
+    """A convergence study whose n = 4 hangs in FreeFEM's child (its n = 2 done), under way."""
+    proc = harness_process(results, "convergence", str(STUB_CASE), "--levels", "2,4,8",
+                           "--set", "scene.material=HangFine", "--set", "scene.initial_guess=coarser", *extra)
+    wait_for(lambda: any((results / "paper").glob(".tmp-n4-*/child.pid")))
+    return proc
+
+
+def end_hung_children(results: Path) -> None:
+    """The stub's `sleep 60` (a child of FreeFEM, in FreeFEM's group) outlives a SIGKILLed harness."""
+    for pid_file in (results / "paper").glob(".tmp-n4-*/child.pid"):
+        with contextlib.suppress(ProcessLookupError, ValueError):
+            os.killpg(os.getpgid(int(pid_file.read_text())), signal.SIGKILL)
+
+
+def test_a_second_study_into_the_same_directory_is_refused_and_the_first_ends_consistent(capsys, tmp_path):
+    """Two convergence studies of one scene into one --results at once (loads -100 and -300)
+    used to mix their levels: summary.json from one, n2 and n4 from the other. The second
+    is refused with one line and exit 7 (BUSY) before touching anything; the first, when
+    interrupted, restores the earlier study; afterwards a study runs normally."""
+    assert run(capsys, tmp_path, "convergence", str(STUB_CASE), "--levels", "2,4,8")[0] == 0
+    case = tmp_path / "paper"
+    keys = {n: cache.stored_key(case / f"n{n}") for n in (2, 4, 8)}
+    first = hung_study(tmp_path, "--set", "loads.traction_y=-100")
+    try:
+        code, err = run(capsys, tmp_path, "convergence", str(STUB_CASE), "--levels", "2,4,8",
+                        "--set", "loads.traction_y=-300")
+        assert code == ExitCode.BUSY == 7
+        one_error(err, str(case), f"pid {first.pid}", "another study")
+        assert not any(line.startswith("[") for line in err)  # nothing of it ran
+        assert list(case.glob(".tmp-n4-*"))  # the first study's run, untouched
+    finally:
+        first.send_signal(signal.SIGINT)
+        first.communicate(timeout=30)
+    assert first.returncode == 130
+    assert {n: cache.stored_key(case / f"n{n}") for n in (2, 4, 8)} == keys
+    assert atomic.mixed_levels(case) == []
+    code, _ = run(capsys, tmp_path, "convergence", str(STUB_CASE), "--levels", "2,4,8", "--set", "loads.traction_y=-300")
+    assert code == 0 and atomic.mixed_levels(case) == []
+    assert not list(case.glob(".tmp-*")) and not list(case.glob(".backup-*"))
+
+
+def test_two_studies_started_together_never_interleave(tmp_path):
+    """Both launched at once, each a full study: each ends 0 or 7 (at least one 0), and the
+    directory holds one complete study, by its keys."""
+    procs = [harness_process(tmp_path, "convergence", str(STUB_CASE), "--levels", "2,4,8",
+                             "--set", f"loads.traction_y={load}") for load in (-100, -300)]
+    codes = []
+    for proc in procs:
+        _, err = proc.communicate(timeout=120)
+        codes.append(proc.returncode)
+        assert proc.returncode in (0, 7), err.decode()
+    assert 0 in codes
+    case = tmp_path / "paper"
+    assert atomic.mixed_levels(case) == [] and (case / "summary.json").is_file()
+
+
+def test_a_lock_left_by_a_killed_study_does_not_block_and_its_temp_dirs_are_swept(capsys, tmp_path):
+    """kill -9 of a study mid-run: the kernel drops its lock; the next study runs, removes the
+    dead run's .tmp-n4-* (which used to stay forever) and restores the earlier study's dirs."""
+    assert run(capsys, tmp_path, "convergence", str(STUB_CASE), "--levels", "2,4,8")[0] == 0
+    case = tmp_path / "paper"
+    first = hung_study(tmp_path, "--set", "loads.traction_y=-100")
+    first.kill()
+    first.communicate(timeout=30)
+    end_hung_children(tmp_path)
+    assert list(case.glob(".tmp-n4-*")) and list(case.glob(".backup-*"))  # what a kill -9 leaves
+    code, err = run(capsys, tmp_path, "convergence", str(STUB_CASE), "--levels", "2,4,8")
+    assert code == 0, err
+    assert not list(case.glob(".tmp-*")) and not list(case.glob(".backup-*")) and not list(case.glob(".old-*"))
+    assert atomic.mixed_levels(case) == []
+
+
+def test_solve_holds_the_scene_directory_too(capsys, tmp_path):
+    """`solve` writes the scene's level dirs: it is refused while a study of the scene runs."""
+    first = hung_study(tmp_path)
+    try:
+        code, err = run(capsys, tmp_path, "solve", str(STUB_CASE), "--n", "2", "--set", "loads.traction_y=-7")
+        assert code == ExitCode.BUSY
+        one_error(err, str(tmp_path / "paper"))
+    finally:
+        first.send_signal(signal.SIGINT)
+        first.communicate(timeout=30)
+
+
+def test_a_run_whose_process_died_during_the_study_is_reported_and_swept(capsys, tmp_path, monkeypatch):
+    """A Dask worker killed mid-task leaves its run's .tmp-n8-* in the scene's directory
+    while the scheduler reruns the task elsewhere: the study used to exit 0 silently with the
+    temp dir left. Here the dead worker's temp dir appears while the study runs."""
+    import harness.studies.convergence as study
+
+    real = study.run_study
+
+    def with_a_dead_worker(scene, levels, layout, *args):  # noqa: ANN001, ANN202
+        (layout.case_dir(scene.name) / ".tmp-n8-deadbeef").mkdir(parents=True)
+        return real(scene, levels, layout, *args)
+
+    monkeypatch.setattr(study, "run_study", with_a_dead_worker)
+    code, err = run(capsys, tmp_path, "convergence", str(STUB_CASE), "--levels", "2,4,8")
+    assert code == 0
+    warnings = [line for line in err if line.startswith("warning:") and ".tmp-n8-deadbeef" in line]
+    assert len(warnings) == 1 and "died" in warnings[0]
+    assert not list((tmp_path / "paper").glob(".tmp-*"))
