@@ -100,7 +100,8 @@ def check_guards(plan: Plan) -> None:
 def run_pipeline(plan: Plan, runs: Callable[[], R], report: Callable[[R], object],
                  verdict: Callable[[R], str | None] = lambda _: None) -> R:
     """Guards, then the runs and the report inside one transaction, then the verdict: a
-    message from `verdict` is raised as a VerdictError (exit 1), the report already written."""
+    message from `verdict` is raised as a VerdictError (exit 1), the report already written
+    (a verdict with another exit code raises its own error: crosscheck's 6 and 3)."""
     check_guards(plan)
     transaction = StudyTransaction(*plan.scene_dirs, outputs=plan.outputs, locked=plan.locked)
     with transaction:

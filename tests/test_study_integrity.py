@@ -191,3 +191,37 @@ def test_a_run_whose_process_died_during_the_study_is_reported_and_swept(capsys,
     warnings = [line for line in err if line.startswith("warning:") and ".tmp-n8-deadbeef" in line]
     assert len(warnings) == 1 and "died" in warnings[0]
     assert not list((tmp_path / "paper").glob(".tmp-*"))
+
+
+# ---- an interrupted cross-check --------------------------------------------------------------
+
+def test_an_interrupted_crosscheck_keeps_the_earlier_crosscheck_whole(tmp_path):
+    """SIGINT to a cross-check (--set loads.traction_y=-300, the stand-in solver hung at
+    n = 4) over an earlier one (-100, real FreeFEM and the GetFEM peer) used to leave
+    runs/paper/n2 from the new one and n4 and crosscheck.csv from the old. It runs in
+    convergence's transaction now: every level dir and the table are the earlier ones."""
+    from harness.peer import SYSTEM_PYTHON
+
+    if subprocess.run([SYSTEM_PYTHON, "-I", "-c", "import getfem"], capture_output=True, cwd="/").returncode:
+        pytest.skip("GetFEM (python3-getfem) is not installed")
+    argv = ["crosscheck", str(REPO / "cases" / "paper.toml"), "--levels", "2,4", "--branches", "zero",
+            "--results", str(tmp_path)]
+    earlier = subprocess.run([sys.executable, "-m", "harness", *argv, "--set", "loads.traction_y=-100"],
+                             cwd=REPO, capture_output=True, text=True, timeout=300)
+    assert earlier.returncode == 0, earlier.stderr
+    out = tmp_path / "crosscheck"
+    runs = out / "runs" / "paper"  # zero is the paper's own start (its coarsest level's)
+    keys = {n: cache.stored_key(runs / f"n{n}") for n in (2, 4)}
+    table = (out / "crosscheck.csv").read_text()
+    proc = subprocess.Popen([sys.executable, "-m", "harness", *argv, "--set", "loads.traction_y=-300",
+                             "--set", "scene.material=HangFine", "--freefem", str(STUB)],
+                            cwd=REPO, stdout=subprocess.PIPE, stderr=subprocess.PIPE)
+    wait_for(lambda: any(runs.glob(".tmp-n4-*/child.pid")))
+    assert cache.stored_key(runs / "n2") != keys[2]  # the new n = 2 is in place: the mix to be undone
+    proc.send_signal(signal.SIGINT)
+    _, err = proc.communicate(timeout=30)
+    assert proc.returncode == 130, err.decode()
+    one_error(err.decode().strip().splitlines(), "interrupted by SIGINT")
+    assert {n: cache.stored_key(runs / f"n{n}") for n in (2, 4)} == keys
+    assert (out / "crosscheck.csv").read_text() == table
+    assert not list(runs.glob(".tmp-*")) and not list(runs.glob(".backup-*")) and not list(out.glob(".backup-*"))
