@@ -34,7 +34,9 @@ class DirectoryLocks:
 
     def __enter__(self) -> DirectoryLocks:
         try:
-            for directory in sorted({Path(d) for d in self.directories}):
+            # One lock per directory however it is spelled: a second flock of the same file
+            # from this process would be refused as another study's.
+            for directory in sorted({Path(d).resolve() for d in self.directories}):
                 self.held.append(lock(directory))
         except BaseException:
             self.release()
