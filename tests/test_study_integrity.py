@@ -225,3 +225,39 @@ def test_an_interrupted_crosscheck_keeps_the_earlier_crosscheck_whole(tmp_path):
     assert {n: cache.stored_key(runs / f"n{n}") for n in (2, 4)} == keys
     assert (out / "crosscheck.csv").read_text() == table
     assert not list(runs.glob(".tmp-*")) and not list(runs.glob(".backup-*")) and not list(out.glob(".backup-*"))
+
+
+def test_a_study_whose_dask_worker_died_reports_it_and_leaves_no_temp_dir(tmp_path):
+    """A real local Dask cluster: the worker running n = 4 is killed (SIGKILL) mid-run; the
+    scheduler reruns the scene's task on a worker, and the study ends complete (exit 0),
+    as before, but no longer with the dead run's .tmp-n4-* left and nothing said."""
+    pytest.importorskip("distributed", reason="dask/distributed missing (the 'cluster' extra)")
+    cases = tmp_path / "cases"
+    cases.mkdir()
+    (cases / "paper.toml").write_text(STUB_CASE.read_text().replace('material = "BaTiO3"',
+                                                                   'material = "HangBriefly"', 1))
+    results = tmp_path / "results"
+    proc = subprocess.Popen([sys.executable, "-m", "harness", "scenes", "--cases", str(cases), "--levels", "2,4,8",
+                             "--cluster", "local:2", "--results", str(results), "--freefem", str(STUB)],
+                            cwd=REPO, stdout=subprocess.PIPE, stderr=subprocess.PIPE)
+    case = results / "paper"
+    try:
+        wait_for(lambda: any(case.glob(".tmp-n4-*/child.pid")), timeout=120)
+        (pid_file,) = case.glob(".tmp-n4-*/child.pid")
+        dead_run = pid_file.parent
+        worker = int(pid_file.read_text())  # the stub's sleep, below FreeFEM (and a shell or two)
+        while "python" not in Path(f"/proc/{worker}/cmdline").read_text(errors="replace"):
+            worker = int(Path(f"/proc/{worker}/stat").read_text().split(")")[-1].split()[1])
+        assert worker not in (1, proc.pid)  # a Dask worker process, not the harness
+        os.kill(worker, signal.SIGKILL)
+        _, err = proc.communicate(timeout=180)
+    finally:
+        if proc.poll() is None:
+            proc.kill()
+            proc.communicate()
+    lines = err.decode().strip().splitlines()
+    assert proc.returncode == 0, lines
+    warnings = [line for line in lines if line.startswith("warning:") and dead_run.name in line]
+    assert len(warnings) == 1 and "died" in warnings[0], lines
+    assert not list(case.glob(".tmp-*")) and not list(case.glob(".old-*"))
+    assert all((case / f"n{n}" / "run.json").is_file() for n in (2, 4, 8))
