@@ -59,7 +59,7 @@ class StudyTransaction:
     without a report of its own: `solve`'s scene), is locked on entry (study_lock.py), or a
     StudyBusy (exit 7) before anything is touched. Holding the locks, whatever a dead
     process left there is stale: a backup is restored, a run's temp dir and a half-swapped
-    level dir are removed (`swept_before`). The temp dirs found on a successful exit are
+    level dir are removed, quietly. The temp dirs found on a successful exit are
     those of runs whose process died during the study, a Dask worker killed while its task
     was rerun elsewhere (`swept_after`, for the study to report)."""
 
@@ -70,7 +70,6 @@ class StudyTransaction:
         self.owned = [(directory, every_file, directory / tag) for directory, every_file in owned.items()]
         self.watched = tuple(dict.fromkeys([*owned, *map(Path, locked)]))
         self.locks = DirectoryLocks(self.watched)
-        self.swept_before: list[Path] = []
         self.swept_after: list[Path] = []
 
     @property
@@ -84,7 +83,8 @@ class StudyTransaction:
             for directory, every_file, backup in self.owned:
                 for stale in sorted(directory.glob(f"{BACKUP_PREFIX}*")):  # the lock's: a dead study's
                     restore(stale, directory)
-            self.swept_before = [p for directory in self.watched for p in sweep(directory)]
+            for directory in self.watched:
+                sweep(directory)
             for directory, every_file, backup in self.owned:
                 backup.mkdir()
                 for item in study_items(directory, every_file):
