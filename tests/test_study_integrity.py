@@ -61,6 +61,15 @@ def test_levels_that_cannot_give_a_slope_are_refused_before_anything_runs(capsys
     assert not any(line.startswith("[") for line in err)  # no level ran
 
 
+@pytest.mark.parametrize("argv, needs", [(["verify", "--cases", "bulk", "--skip-gci", "--levels", "4"], 2),
+                                         (["scenes", "--cases", str(STUB_CASE.parent), "--levels", "2,4"], 3)])
+def test_every_study_with_a_slope_refuses_too_few_levels_before_making_anything(capsys, tmp_path, argv, needs):
+    code, err = run(capsys, tmp_path / "results", *argv)
+    assert code == ExitCode.INPUT
+    one_error(err, f"needs {needs} distinct levels")
+    assert not (tmp_path / "results").exists()
+
+
 def test_a_manufactured_study_needs_two_levels_and_the_rule_is_one_table():
     from harness.guards import Slope, check_slope_levels
     from harness.errors import SceneError
