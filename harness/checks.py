@@ -11,7 +11,7 @@ import numpy as np
 
 from harness.errors import HarnessError
 from harness.fields import Fields
-from harness.gmsh_mesh import boundary_facets, outward_normals, signed_measures, turned_over
+from harness.simplex import boundary_facets, outward_normals, signed_measures, turned_over
 from harness.record import RunRecord
 from harness.scene import Scene
 
