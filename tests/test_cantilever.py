@@ -126,3 +126,12 @@ def test_a_study_records_the_tresca_warning_of_each_level_in_its_summary(capsys,
     for n in (2, 4, 8):
         [line] = summary["runs"][str(n)]["warnings"]
         assert line.startswith(f"cantilever n={n}: Tresca friction ") and f"warning: {line}" in err
+
+
+def test_the_device_picture_of_a_scene_without_heat(capsys, tmp_path):
+    """The cantilever has no theta: the picture shows phi and |u| (it failed: no field 'theta')."""
+    from harness.device_plot import render
+
+    solve(capsys, tmp_path, 2)
+    render(tmp_path / "cantilever" / "n2", tmp_path / "fields.png")
+    assert (tmp_path / "fields.png").stat().st_size > 10_000
