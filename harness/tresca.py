@@ -29,7 +29,7 @@ def grip_warning(scene: Scene, record: RunRecord) -> str | None:
     contact = record.contact_force or 0.0
     open_part = record.friction_open or 0.0
     on_open = open_part > OPEN_SHARE * friction
-    if not (friction > contact or on_open):
+    if friction <= 0 or not (friction > contact or on_open):
         return None
     unit = "N" if scene.dimension == 3 else "N/m"
     where = f", {open_part:.3g} {unit} of it where the contact is open" if on_open else ""
