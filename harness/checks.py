@@ -97,24 +97,42 @@ FLOOR = 1e-10
 # in the suite (4.7e-7 C/m), so a 0/0 is not a failure.
 NOTHING_FLOWS = 1e-30
 
-# The round-off floor of every check, in one place (docs/hard-cases.md): a check's imbalance
-# passes when it is within its tolerance of the larger of its flow and
-#     floor = ROUNDINGS * eps * reading / tolerance,
-# i.e. when it is below ROUNDINGS machine epsilons of `reading`, the size of the terms it is
-# summed from (checks.idp: sum_j |K_ij x_j| + |b_i|, the loads and the bulk of the mesh at the
-# state; per unit of a node's share of Gamma_3 for a nodal traction or flux, over the body for
-# a balance). An open contact carries no traction and no flux: its readings are round-off,
-# measured <= 0.3 eps of `reading` (the open cantilever, cases/cantilever.toml with a 1 um gap:
-# sigma_nu 6.3e-8 N/m^2 of 9.7e8, charge flux 5.3e-18 C/m^2 of 0.094), so 1000 roundings leave
-# a margin over 3000 and still fail any imbalance above 2.2e-13 of the terms.
+# The round-off floor: a check's imbalance also passes when it is below ROUNDINGS machine
+# epsilons of `reading`, the size of the terms it is summed from (checks.idp: sum_j
+# |K_ij x_j| + |b_i|, the loads and the bulk of the mesh at the state; per unit of a node's
+# share of Gamma_3 for a nodal traction or flux, over the body for a balance). An open contact
+# carries no traction and no flux: its readings are round-off, measured <= 0.3 eps of
+# `reading` (the open cantilever, cases/cantilever.toml with a 1 um gap: sigma_nu 6.3e-8 N/m^2
+# of 9.7e8, charge flux 5.3e-18 C/m^2 of 0.094), so 1000 roundings leave a margin over 3000
+# and still fail any imbalance above 2.2e-13 of the terms.
 ROUNDINGS = 1e3
 EPS = float(np.finfo(float).eps)
 
 
-def floor(reading: float, check: str) -> float:
-    """The round-off floor of a check's scale (in the flow's units): ROUNDINGS machine
-    epsilons of `reading`, over the check's tolerance."""
-    return ROUNDINGS * EPS * reading / TOLERANCES[check][0]
+def floors(c: dict[str, Any], length: float) -> dict[str, float]:
+    """The floor of each check's scale, in the flow's units: every floor rule is here, once
+    (docs/hard-cases.md, "Round-off floors"). A check compares its imbalance with its
+    tolerance times the larger of its flow and this floor:
+
+        floor = max(ROUNDINGS eps reading / tolerance, what the loads could drive)
+
+    the second being FLOOR of the foundation's natural flux for the heat and charge checks (a
+    contact that never closes: the state never sees theta_f, phi_f) and NOTHING_FLOWS.
+    `force` is absolute [N/m; N in 3D]: its check adds it to Newton's residual bound."""
+
+    def roundoff(key: str, check: str) -> float:
+        return ROUNDINGS * EPS * c.get(key, 0.0) / TOLERANCES[check][0]
+
+    natural = {name: c.get(f"natural_{name}_flux", 0.0) for name in ("heat", "charge")}
+    out = {
+        "force": ROUNDINGS * EPS * c.get("force_reading", 0.0),
+        "sigma_nu": roundoff("traction_reading", "sigma_nu"),
+        "sigma_tau": roundoff("traction_reading", "sigma_tau"),
+    }
+    for name in ("heat", "charge"):
+        out[name] = max(roundoff(f"{name}_reading", name), FLOOR * natural[name] * length, NOTHING_FLOWS)
+        out[f"{name}_open_flux"] = max(roundoff(f"{name}_flux_reading", "open_flux"), FLOOR * natural[name], 1e-300)
+    return out
 
 
 def physical_checks(record: RunRecord, scene: Scene) -> dict[str, Any]:
@@ -125,9 +143,9 @@ def physical_checks(record: RunRecord, scene: Scene) -> dict[str, Any]:
     tol = {name: value for name, (value, _) in TOLERANCES.items()}
     length = contact_length(scene)
     applied = float(np.linalg.norm(c.get("applied_load", [0.0, 0.0])))
-    traction_floor = floor(c.get("traction_reading", 0.0), "sigma_nu")
+    floor = floors(c, length)
     sigma_scale = max(abs(c.get("max_sigma_nu", 0.0)), abs(c.get("min_sigma_nu", 0.0)), applied / max(length, 1e-300),
-                      traction_floor)
+                      floor["sigma_nu"])
     # checks.idp's force scale, the largest of the three forces it balances [N/m; N in 3D]
     forces = max(float(np.linalg.norm(c.get(key, [0.0]))) for key in ("applied_load", "clamp_reaction", "contact_force_on_body"))
     S = c.get("S", math.inf)
@@ -144,11 +162,10 @@ def physical_checks(record: RunRecord, scene: Scene) -> dict[str, Any]:
         # > 0 when |sigma_tau| exceeds S; relative to S plus 1e-4 of the traction scale (the
         # nodal reading's error follows the load, not S: S = 0, or S = 8.5 under 1e8 N/m^2),
         # or to the readings' round-off floor (Coulomb's S = 0 where the contact is open)
-        "sigma_tau_excess": ((tau - S) / max(S + 1e-4 * sigma_scale, floor(c.get("traction_reading", 0.0), "sigma_tau"))
-                             if math.isfinite(S) else -1.0),
+        "sigma_tau_excess": (tau - S) / max(S + 1e-4 * sigma_scale, floor["sigma_tau"]) if math.isfinite(S) else -1.0,
     }
     # The force imbalance's round-off allowance, relative to the force scale as the imbalance.
-    force_floor = max(1e-12, ROUNDINGS * EPS * c.get("force_reading", 0.0) / max(forces, 1e-300))
+    force_floor = max(1e-12, floor["force"] / max(forces, 1e-300))
     natural = {name: c.get(f"natural_{name}_flux", 0.0) for name in ("heat", "charge")}
     flows = {"heat": (record.heat_in_contact or 0.0, c.get("heat_source", 0.0), c.get("heat_out_dirichlet", 0.0)),
              "charge": (record.charge_in_contact or 0.0, c.get("charge_source", 0.0), c.get("charge_out_dirichlet", 0.0))}
@@ -158,8 +175,7 @@ def physical_checks(record: RunRecord, scene: Scene) -> dict[str, Any]:
     driven_electrode = {"heat": False, "charge": scene.sections.loads.electrode_potential != 0}
     for name, (into, source, leaving) in flows.items():
         # FreeFEM's {name}_imbalance, with a floor for a contact that carries nothing.
-        scale = max(abs(into), abs(source), abs(leaving), electrode[name], FLOOR * natural[name] * length, NOTHING_FLOWS,
-                    floor(c.get(f"{name}_reading", 0.0), name))
+        scale = max(abs(into), abs(source), abs(leaving), electrode[name], floor[name])
         out[f"{name}_imbalance"] = abs(into + source - leaving) / scale
         # Nothing drives this flow (no conductance drive, no source: `block`'s phi_f = theta_f = 0,
         # `heated`'s charge, `heat` without a contact part): the exact flow is zero and every term
@@ -171,8 +187,7 @@ def physical_checks(record: RunRecord, scene: Scene) -> dict[str, Any]:
         found = c.get(f"max_{name}_flux_open", math.nan)
         # What the contact law puts at open nodes (checks.idp); absent: no open node may carry any.
         expected = c.get(f"max_{name}_flux_open_expected", 0.0)
-        scale = max(c.get(f"max_{name}_flux_contact", 0.0), FLOOR * natural[name], 1e-300,
-                    floor(c.get(f"{name}_flux_reading", 0.0), "open_flux"))
+        scale = max(c.get(f"max_{name}_flux_contact", 0.0), floor[f"{name}_open_flux"])
         out[f"max_{name}_flux_open"] = found
         out[f"{name}_flux_open_expected"] = expected
         out[f"{name}_flux_open_error"] = abs(found - expected) / scale
