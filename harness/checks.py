@@ -98,13 +98,13 @@ FLOOR = 1e-10
 NOTHING_FLOWS = 1e-30
 
 # The round-off floor: a check's imbalance also passes when it is below ROUNDINGS machine
-# epsilons of `reading`, the size of the terms it is summed from (checks.idp: sum_j
-# |K_ij x_j| + |b_i|, the loads and the bulk of the mesh at the state; per unit of a node's
-# share of Gamma_3 for a nodal traction or flux, over the body for a balance). An open contact
-# carries no traction and no flux: its readings are round-off, measured <= 0.3 eps of
-# `reading` (the open cantilever, cases/cantilever.toml with a 1 um gap: sigma_nu 6.3e-8 N/m^2
-# of 9.7e8, charge flux 5.3e-18 C/m^2 of 0.094), so 1000 roundings leave a margin over 3000
-# and still fail any imbalance above 2.2e-13 of the terms.
+# epsilons of `reading`, the size of the terms it is summed from (checks.idp: |K_ii x_i| +
+# |b_i|, the loads and the bulk of the mesh at the state; per unit of a node's share of
+# Gamma_3 for a nodal traction or flux, over the body for a balance). An open contact carries
+# no traction and no flux: its readings are round-off, measured <= 6 eps of `reading` (the
+# open cantilever, cases/cantilever.toml with a 1 um gap, n = 8: charge flux 1.3e-17 C/m^2 of
+# 9.8e-3, sigma_nu 6.3e-8 N/m^2 of 3.8e8), so 1000 roundings leave a margin over 150 and
+# still fail any imbalance above 2.2e-13 of the terms.
 ROUNDINGS = 1e3
 EPS = float(np.finfo(float).eps)
 
