@@ -147,7 +147,8 @@ def physical_checks(record: RunRecord, scene: Scene) -> dict[str, Any]:
     sigma_scale = max(abs(c.get("max_sigma_nu", 0.0)), abs(c.get("min_sigma_nu", 0.0)), applied / max(length, 1e-300),
                       floor["sigma_nu"])
     # checks.idp's force scale, the largest of the three forces it balances [N/m; N in 3D]
-    forces = max(float(np.linalg.norm(c.get(key, [0.0]))) for key in ("applied_load", "clamp_reaction", "contact_force_on_body"))
+    forces = max(float(np.linalg.norm(c.get(key, [0.0])))
+                 for key in ("applied_load", "clamp_reaction", "contact_force_on_body"))
     S = c.get("S", math.inf)
     tau = c.get("max_abs_sigma_tau", 0.0)
     out: dict[str, Any] = {
