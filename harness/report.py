@@ -71,7 +71,8 @@ def summary(study: Study) -> dict[str, Any]:
         # from n = COST_FIT_FROM on: the coarser levels are start-up, not the solver's scaling.
         "cost_vs_dofs": cost_exponents(study),
         # Each level's cache key: a level dir whose inputs.json differs is not this study's run.
-        "runs": {str(n): {**{k: getattr(run.record, k) for k in RUN_FACTS}, "key": run.key, **mesh_quality(study, n)}
+        "runs": {str(n): {**{k: getattr(run.record, k) for k in RUN_FACTS}, "key": run.key, **mesh_quality(study, n),
+                          **({"warnings": run.record.warnings} if run.record.warnings else {})}
                  for n, run in sorted(study.runs.items())},
         "scene": study.scene.table,
         "tools": tool_versions(),

@@ -22,6 +22,7 @@ from harness.signals import CHILDREN, Interrupted
 from harness.layout import Layout
 from harness.mesh import coarser_meshes, family_levels
 from harness.record import RunRecord, read_run_json, write_run_json
+from harness.tresca import grip_warning
 from harness.scene import Scene
 from harness.script import main_script
 
@@ -348,6 +349,9 @@ def collect(
                           peak_rss_mb=record.peak_rss_mb if own else outcome.peak_rss_mb,
                           initial_guess=scene.initial_guess,
                           started_from=guess if not start else f"file {start.state}")
+    grip = grip_warning(scene, record)
+    if grip:
+        record = record.with_(warnings=[grip])
     write_run_json(record, work)
     return record
 

@@ -108,6 +108,9 @@ def plans_of(case: Path, overrides: list[str], branches: list[str] | None,
     base = load_scene(case, overrides)
     if base.element != "P1" or base.manufactured:
         raise SceneError(f"{case}: the GetFEM peer solves P1 scenes without manufactured sources")
+    law = base.sections.contact.friction_law if "friction" in base.effects else "tresca"
+    if law != "tresca":  # the peer's friction is Tresca's ball (peer_getfem/terms.py)
+        raise SceneError(f"{case}: the GetFEM peer solves Tresca friction only, not contact.friction_law = {law!r}")
     own = base.sections.scene.coarsest_guess if base.initial_guess == "coarser" else base.initial_guess
     out = []
     for start in branches or [own]:
