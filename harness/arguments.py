@@ -28,8 +28,22 @@ def positive_int(text: str) -> int:
 
 
 def level_list(text: str) -> tuple[int, ...]:
-    """`2,4,8` -> (2, 4, 8): positive, in the order given (empty parts skipped)."""
-    return tuple(positive_int(part.strip()) for part in text.split(",") if part.strip())
+    """`2,4,8` -> (2, 4, 8): positive, in the order given; '' -> () (an option's "none")."""
+    if not text.strip():
+        return ()
+    parts = [part.strip() for part in text.split(",")]
+    if "" in parts:
+        raise argparse.ArgumentTypeError(f"{text!r} has an empty level between its commas")
+    return tuple(positive_int(part) for part in parts)
+
+
+def study_levels(text: str) -> tuple[int, ...]:
+    """A study's --levels: as level_list, but never empty (leaving the option out means the
+    case's own levels; an empty value is a mistake, not that)."""
+    levels = level_list(text)
+    if not levels:
+        raise argparse.ArgumentTypeError("no levels given (leave --levels out for the case's own)")
+    return levels
 
 
 def name_list(text: str) -> list[str]:
@@ -48,7 +62,7 @@ def add_case(parser: argparse.ArgumentParser, optional: bool = False) -> None:
 
 def add_levels(parser: argparse.ArgumentParser, default: tuple[int, ...] | None = None,
                what: str = "the case's") -> None:
-    parser.add_argument("--levels", type=level_list, default=default,
+    parser.add_argument("--levels", type=study_levels, default=default,
                         help=f"the levels to run, comma-separated, e.g. 2,4,8: level n has cells of about 1/n in the "
                         f"model's units (default: {what})")
 

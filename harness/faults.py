@@ -10,6 +10,7 @@ The table (also in the README):
     4   ENVIRONMENT  permissions, full disk, read-only or wrong-kind path, missing tool, memory
     5   NO_PEER      crosscheck: GetFEM (python3-getfem) is not installed
     6   DISAGREE     crosscheck: FreeFEM and GetFEM differ by more than 1e-8 relative
+    7   BUSY         another study is writing the same results directory
     130 INTERRUPTED  SIGINT, SIGTERM or SIGHUP
 """
 
@@ -27,7 +28,7 @@ from typing import Callable, Iterator
 from harness import signals
 from harness.contract import ExitCode
 from harness.errors import (Disagreement, EnvironmentFault, FieldsError, HarnessError, MeshError, PeerMissing,
-                            RunError, SceneError, VerdictError)
+                            RunError, SceneError, StudyBusy, VerdictError)
 
 # errno -> what a user should hear about the path involved.
 MEANING = {
@@ -79,6 +80,8 @@ def exit_code(exc: BaseException) -> ExitCode:
         return ExitCode.NO_PEER
     if isinstance(exc, Disagreement):
         return ExitCode.DISAGREE
+    if isinstance(exc, StudyBusy):
+        return ExitCode.BUSY
     if isinstance(exc, VerdictError):
         return ExitCode.VERDICT
     if isinstance(exc, (EnvironmentFault, OSError, MemoryError)):

@@ -3,9 +3,13 @@ physical tags rewritten to the role labels of harness/contract.py: FreeFEM never
 file's own names or numbers.
 
 Levels (geometry.levels):
-- split: the mesh of h = 1/coarsest, refined k times by gmsh's uniform split (each triangle
-  into 4, each tetrahedron into 8) for n = coarsest * 2^k. On a straight-sided body every
-  coarse simplex is a union of fine ones, so a coarse P1 field is exactly a fine one.
+- split: the mesh of h = 1/coarsest, refined k times by a uniform split (each triangle into
+  4, each tetrahedron into 8) for n = coarsest * 2^k. On a straight-sided body every coarse
+  simplex is a union of fine ones, so a coarse P1 field is exactly a fine one. Triangles are
+  split by gmsh (the split of a triangle is unique); tetrahedra by harness/tet_split.py along
+  each octahedron's shortest diagonal (gmsh's fixed diagonal lets the quality fall level by
+  level), unless a curve or surface of the body is curved: there gmsh's split puts the new
+  nodes on the curve, which this harness does not, so gmsh splits such a body.
 - remesh: a new mesh for each h = 1/n: every size of the file scaled by coarsest / n and
   none above h; not nested (the error transfer is the point-located nodal interpolant).
 
@@ -26,10 +30,13 @@ from pathlib import Path
 import gmsh
 import numpy as np
 
+from harness import tet_split
 from harness.contract import ROLE_LABELS
 from harness.errors import MeshError
 from harness.gmsh_api import session
 from harness.gmsh_geometry import GmshGeometry
+from harness.simplex import (boundary_facets, label_measures, outward_normals, quality,
+                             signed_measures, turned_over)
 
 BODY_LABEL = 1
 # gmsh's element type of a simplex of each dimension (1: line, 2: triangle, 4: tetrahedron).
@@ -42,6 +49,9 @@ DEGENERATE = 1e-10
 # tilted flat face is ~1e-15 (measured on cases/tilted*.geo), a circle of radius R meshed at
 # h turns by h / R between facets (0.06 for R = 1 at h = 1/16).
 FLAT = 1e-8
+# A surface whose coarsest mesh nodes lie within this fraction of its extent from one plane is
+# flat (round-off of a turned plane is ~1e-16 of it); else curved, and gmsh splits the body.
+COPLANAR = 1e-9
 
 
 @dataclass(frozen=True)
@@ -76,7 +86,8 @@ def generate(geometry: GmshGeometry, n: int) -> SimplexMesh:
                 gmsh.option.setNumber("Mesh.MeshSizeMax", 1.0 / geometry.coarsest)
                 gmsh.option.setNumber("Mesh.MeshSizeFactor", geometry.coarsest / n)
             gmsh.model.mesh.generate(d)
-            for _ in range(refinements):
+            by_gmsh = refinements if d == 2 or (refinements and curved_body()) else 0
+            for _ in range(by_gmsh):
                 gmsh.model.mesh.refine()
             points, cells, entity_of_cell = read_cells(d)
             named = read_named_facets(geometry, points)
@@ -91,8 +102,27 @@ def generate(geometry: GmshGeometry, n: int) -> SimplexMesh:
     cells = index[cells]
     cells = oriented(points, cells, entity_of_cell, n)
     facets, labels = labelled_boundary(points, cells, {tuple(sorted(index[list(f)])): r for f, r in named.items()}, n)
+    if refinements > by_gmsh:
+        fine = tet_split.refine(tet_split.TetMesh(points, cells, facets, labels), refinements - by_gmsh)
+        points, cells, facets, labels = fine.points, fine.cells, fine.facets, fine.labels
     check_flat_contact(points, facets, labels, n)
     return SimplexMesh(points, cells, facets, labels, quality(points, cells))
+
+
+def curved_body() -> bool:
+    """Whether the model gmsh holds (meshed) has a curve that is not a line or a surface whose
+    mesh nodes are not on one plane: gmsh's split would put new nodes on it, off the edges'
+    midpoints."""
+    if any(gmsh.model.getType(1, tag) != "Line" for _, tag in gmsh.model.getEntities(1)):
+        return True
+    for _, tag in gmsh.model.getEntities(2):
+        _, coords, _ = gmsh.model.mesh.getNodes(2, tag, includeBoundary=True)
+        xyz = np.asarray(coords).reshape(-1, 3)
+        if len(xyz) > 3:
+            extent = float(np.ptp(xyz, axis=0).max())
+            if np.linalg.svd(xyz - xyz.mean(axis=0), compute_uv=False)[-1] > COPLANAR * extent * math.sqrt(len(xyz)):
+                return True
+    return False
 
 
 def read_cells(d: int) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
@@ -153,18 +183,6 @@ def used_points(points: np.ndarray, cells: np.ndarray) -> tuple[np.ndarray, np.n
     return index, points[used]
 
 
-def signed_measures(points: np.ndarray, cells: np.ndarray) -> np.ndarray:
-    edges = points[cells[:, 1:]] - points[cells[:, :1]]
-    return np.linalg.det(edges) / math.factorial(cells.shape[1] - 1)
-
-
-def turned_over(cells: np.ndarray, which: np.ndarray) -> np.ndarray:
-    """A copy of `cells` with the cells `which` selects turned over (last two vertices swapped)."""
-    cells = cells.copy()
-    cells[which, -1], cells[which, -2] = cells[which, -2], cells[which, -1].copy()
-    return cells
-
-
 def oriented(points: np.ndarray, cells: np.ndarray, owners: np.ndarray, n: int) -> np.ndarray:
     """Positively oriented cells. gmsh orients each surface or volume one way: a surface
     drawn clockwise comes out all negative and is turned over; a cell against the majority
@@ -190,32 +208,6 @@ def oriented(points: np.ndarray, cells: np.ndarray, owners: np.ndarray, n: int) 
         if sign < 0:
             cells = turned_over(cells, mine)
     return cells
-
-
-def boundary_facets(cells: np.ndarray) -> np.ndarray:
-    """The facets that belong to one cell only, oriented so that the cell lies on their
-    inner side (a positive cell's facet opposite vertex k, in the order that keeps the
-    outward normal)."""
-    d = cells.shape[1] - 1
-    if d == 2:
-        local = [[1, 2], [2, 0], [0, 1]]
-    else:
-        local = [[1, 2, 3], [0, 3, 2], [0, 1, 3], [0, 2, 1]]
-    faces = np.vstack([cells[:, f] for f in local])
-    keys = np.sort(faces, axis=1)
-    _, first, count = np.unique(keys, axis=0, return_index=True, return_counts=True)
-    return faces[first[count == 1]]
-
-
-def outward_normals(points: np.ndarray, facets: np.ndarray) -> np.ndarray:
-    """Unit outward normals of facets oriented by boundary_facets."""
-    if facets.shape[1] == 2:
-        t = points[facets[:, 1]] - points[facets[:, 0]]
-        normal = np.column_stack([t[:, 1], -t[:, 0]])  # a counter-clockwise boundary: the right side is out
-    else:
-        p = points[facets]
-        normal = np.cross(p[:, 1] - p[:, 0], p[:, 2] - p[:, 0])
-    return normal / np.linalg.norm(normal, axis=1, keepdims=True)
 
 
 def labelled_boundary(points: np.ndarray, cells: np.ndarray, named: dict[tuple[int, ...], str],
@@ -259,39 +251,6 @@ def check_flat_contact(points: np.ndarray, facets: np.ndarray, labels: np.ndarra
                         "the mean normal (curved contact parts are not supported)")
 
 
-def quality(points: np.ndarray, cells: np.ndarray) -> dict[str, float]:
-    """min angle (2D) or min dihedral angle (3D) in degrees, and the max aspect ratio
-    R / (d r) (circumradius over d times the inradius: 1 for the regular simplex)."""
-    d = cells.shape[1] - 1
-    p = points[cells]
-    volume = np.abs(signed_measures(points, cells))
-    if d == 2:
-        a = np.linalg.norm(p[:, 1] - p[:, 2], axis=1)
-        b = np.linalg.norm(p[:, 2] - p[:, 0], axis=1)
-        c = np.linalg.norm(p[:, 0] - p[:, 1], axis=1)
-        angles = np.degrees(np.arccos(np.clip(np.column_stack([
-            (b**2 + c**2 - a**2) / (2 * b * c), (a**2 + c**2 - b**2) / (2 * a * c),
-            (a**2 + b**2 - c**2) / (2 * a * b)]), -1.0, 1.0)))
-        inradius = volume / (0.5 * (a + b + c))
-        circumradius = a * b * c / (4 * volume)
-        return {"min_angle_deg": float(angles.min()), "max_aspect": float((circumradius / (2 * inradius)).max())}
-    faces = [[1, 2, 3], [0, 3, 2], [0, 1, 3], [0, 2, 1]]
-    normals = []
-    areas = []
-    for f in faces:
-        q = p[:, f]
-        cross = np.cross(q[:, 1] - q[:, 0], q[:, 2] - q[:, 0])
-        areas.append(0.5 * np.linalg.norm(cross, axis=1))
-        normals.append(cross / np.linalg.norm(cross, axis=1, keepdims=True))
-    dihedral = [np.degrees(np.pi - np.arccos(np.clip(np.einsum("ij,ij->i", normals[i], normals[j]), -1.0, 1.0)))
-                for i in range(4) for j in range(i + 1, 4)]
-    inradius = 3 * volume / np.sum(areas, axis=0)
-    edges = p[:, 1:] - p[:, :1]
-    centre = np.linalg.solve(2 * edges, (edges**2).sum(axis=2)[..., None])[..., 0]  # from vertex 0
-    circumradius = np.linalg.norm(centre, axis=1)
-    return {"min_dihedral_deg": float(np.min(dihedral)), "max_aspect": float((circumradius / (3 * inradius)).max())}
-
-
 def write_msh(mesh: SimplexMesh, path: Path) -> None:
     """MSH 2.2 (the only gmsh version FreeFEM reads), physical tags = role labels, body 1."""
     d = mesh.cells.shape[1] - 1
@@ -306,10 +265,5 @@ def write_msh(mesh: SimplexMesh, path: Path) -> None:
 
 def role_measures(mesh: SimplexMesh) -> dict[str, float]:
     """Length (2D) or area (3D) of each role's facets."""
-    p = mesh.points[mesh.facets]
-    if mesh.facets.shape[1] == 2:
-        size = np.linalg.norm(p[:, 1] - p[:, 0], axis=1)
-    else:
-        size = 0.5 * np.linalg.norm(np.cross(p[:, 1] - p[:, 0], p[:, 2] - p[:, 0]), axis=1)
-    return {role: float(size[mesh.labels == label].sum()) for role, label in ROLE_LABELS.items()
-            if (mesh.labels == label).any()}
+    measures = label_measures(mesh.points, mesh.facets, mesh.labels)
+    return {role: measures[label] for role, label in ROLE_LABELS.items() if label in measures}

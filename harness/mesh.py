@@ -7,6 +7,7 @@ gmsh keeps global state and is not thread-safe: call `build_mesh` from one threa
 from __future__ import annotations
 
 import os
+import sys
 from dataclasses import dataclass, replace
 from pathlib import Path
 from typing import Callable, Sequence
@@ -21,6 +22,7 @@ from harness.guards import mesh_file_bytes, need_disk
 from harness.mesh_check import MeshSummary, check_arrays
 from harness.schema import ROLE_LABELS
 from harness.segments import Geometry
+from harness.simplex import quality_warning
 from harness.box import Box
 from harness import box_mesh, gmsh_mesh
 from harness.gmsh_geometry import GmshGeometry
@@ -63,16 +65,17 @@ def coarser_meshes(geometry: Geometry | Box | GmshGeometry, n: int, count: int, 
     if not make:
         return [mesh_path(directory, m) for m in levels]
     with GMSH:
-        return [build_mesh(geometry, m, directory).path for m in levels]
+        return [build_mesh(geometry, m, directory, warn=False).path for m in levels]
 
 
-def build_mesh(geometry: Geometry | Box | GmshGeometry, n: int, directory: Path) -> MeshSummary:
+def build_mesh(geometry: Geometry | Box | GmshGeometry, n: int, directory: Path, warn: bool = True) -> MeshSummary:
     """Write mesh_n<n>.msh into `directory` (only replacing it if the bytes change) and
-    return its checked summary."""
+    return its checked summary; `warn`: say when its quality is poor (the study's own levels,
+    not the coarser meshes a run asks for again)."""
     if isinstance(geometry, Box):
         return build_box_mesh(geometry, n, directory)
     if isinstance(geometry, GmshGeometry):
-        return build_gmsh_mesh(geometry, n, directory)
+        return build_gmsh_mesh(geometry, n, directory, warn)
     cells = {} if geometry.diagonals == "unstructured" else grid_cells(geometry, n)
     level = generate_rectangle(geometry, cells, n)
     # Checked in memory, before writing: re-reading the file took 41 % of the finest mesh's
@@ -301,10 +304,16 @@ def write_level(write: Callable[[Path], None], geometry: Geometry | Box | GmshGe
     return target
 
 
-def build_gmsh_mesh(geometry: GmshGeometry, n: int, directory: Path) -> MeshSummary:
-    """Level n of a scene drawn in gmsh (harness/gmsh_mesh.py), its labels the roles'."""
+def build_gmsh_mesh(geometry: GmshGeometry, n: int, directory: Path, warn: bool = True) -> MeshSummary:
+    """Level n of a scene drawn in gmsh (harness/gmsh_mesh.py), its labels the roles'; with
+    `warn`, one warning line when its quality is below simplex.QUALITY_FLOORS."""
     mesh = gmsh_mesh.generate(geometry, n)
     target = write_level(lambda tmp: gmsh_mesh.write_msh(mesh, tmp), geometry, n, directory)
+    worse = quality_warning(mesh.quality) if warn else None
+    if worse:
+        print(f"warning: mesh n={n} of {geometry.file.name}: {worse}: expect larger errors and slower convergence "
+              "at every level split from it; mesh the coarsest level finer or better (gmsh's Mesh.Optimize, "
+              "Mesh.OptimizeNetgen)", file=sys.stderr, flush=True)
     return MeshSummary(path=target, n=n, nodes=len(mesh.points), triangles=len(mesh.cells),
                        role_lengths=gmsh_mesh.role_measures(mesh), quality=mesh.quality)
 

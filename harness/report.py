@@ -15,7 +15,7 @@ from harness.plot import plot_convergence
 from harness.rates import scaling_exponents
 from harness.fields import read_fields
 from harness.gmsh_geometry import GmshGeometry
-from harness.gmsh_mesh import quality
+from harness.simplex import quality
 from harness.study import Study
 from harness.versions import tool_versions
 from harness.writers import PRECISE_CSV_FORMAT, csv_text, json_text
@@ -74,7 +74,8 @@ def summary(study: Study) -> dict[str, Any]:
         # from n = COST_FIT_FROM on: the coarser levels are start-up, not the solver's scaling.
         "cost_vs_dofs": cost_exponents(study),
         # Each level's cache key: a level dir whose inputs.json differs is not this study's run.
-        "runs": {str(n): {**{k: getattr(run.record, k) for k in RUN_FACTS}, "key": run.key, **mesh_quality(study, n)}
+        "runs": {str(n): {**{k: getattr(run.record, k) for k in RUN_FACTS}, "key": run.key, **mesh_quality(study, n),
+                          **({"warnings": run.record.warnings} if run.record.warnings else {})}
                  for n, run in sorted(study.runs.items())},
         "scene": study.scene.table,
         "tools": tool_versions(),
@@ -86,7 +87,7 @@ COST_FIT_FROM = 8
 
 def mesh_quality(study: Study, n: int) -> dict[str, Any]:
     """A gmsh scene's level mesh: min angle (2D) or dihedral (3D) in degrees and max aspect
-    (harness/gmsh_mesh.py quality), from the mesh level n solved on (its solution, parsed once
+    (harness/simplex.py quality), from the mesh level n solved on (its solution, parsed once
     by the study). The other kinds' meshes are structured (or the box's and rectangle's
     distorted ones), their quality known."""
     if not isinstance(study.scene.geometry, GmshGeometry):

@@ -12,7 +12,7 @@ from pathlib import Path
 from typing import Any
 
 from harness import freefem, launcher, materials, petsc_plugin
-from harness.atomic import write_atomic
+from harness.atomic import OLD_PREFIX, RUN_TEMP_PREFIX, write_atomic
 from harness.contract import Failure
 from harness.cache import cached_record, run_inputs, sha256_file, write_checksums
 from harness.errors import EnvironmentFault, RunError, SceneError
@@ -22,6 +22,7 @@ from harness.signals import CHILDREN, Interrupted
 from harness.layout import Layout
 from harness.mesh import coarser_meshes, family_levels
 from harness.record import RunRecord, read_run_json, write_run_json
+from harness.tresca import grip_warning
 from harness.scene import Scene
 from harness.script import main_script
 
@@ -198,7 +199,7 @@ class LevelRun:
 
     def _new_work_dir(self) -> Path:
         final = self.layout.level_dir(self.scene.name, self.n)
-        work = final.with_name(f".tmp-n{self.n}-{uuid.uuid4().hex[:8]}")
+        work = final.with_name(f"{RUN_TEMP_PREFIX}n{self.n}-{uuid.uuid4().hex[:8]}")
         work.mkdir(parents=True)
         CHILDREN.add_dir(work)  # removed on a signal, whichever thread owns it
         return work
@@ -352,6 +353,9 @@ def collect(
                           peak_rss_mb=record.peak_rss_mb if own else outcome.peak_rss_mb,
                           initial_guess=scene.initial_guess,
                           started_from=guess if not start else f"file {start.state}")
+    grip = grip_warning(scene, record)
+    if grip:
+        record = record.with_(warnings=[grip])
     write_run_json(record, work)
     return record
 
@@ -389,7 +393,7 @@ def keep_failed(work: Path, failed: Path) -> None:
 
 
 def swap_in(work: Path, final: Path) -> None:
-    old = final.with_name(f".old-{final.name}-{uuid.uuid4().hex[:8]}")
+    old = final.with_name(f"{OLD_PREFIX}{final.name}-{uuid.uuid4().hex[:8]}")
     if final.exists():
         os.replace(final, old)
     os.replace(work, final)

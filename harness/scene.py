@@ -16,7 +16,7 @@ from harness.petsc_plugin import default_options, factorising, multigrid
 from harness.box import Box, parse_box
 from harness.gmsh_geometry import GmshGeometry, check_poling, parse_gmsh
 from harness.schema import (EFFECTS, REQUIRED, SCHEMA, SOLVER_SECTIONS, Key, effect_of, geometry_keys,
-                            is_material_path)
+                            is_material_path, unread_by_law)
 from harness.sections import sections_of
 from harness.segments import Geometry, parse_geometry
 from harness.unknowns import Unknowns
@@ -239,6 +239,8 @@ def resolve(raw: dict) -> tuple[dict[str, dict[str, Any]], tuple[str, ...]]:
                 if key in given:
                     warnings.append(f"{section}.{key} is ignored: effect {effect!r} is off")
                 continue
+            if spec.required and key not in given and unread_by_law(section, key, given, keys):
+                continue  # the law in force never reads it (schema.LAW_DATA)
             table[section][key] = checked(f"{section}.{key}", spec, given.get(key, spec.default))
     return table, tuple(warnings)
 

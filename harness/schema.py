@@ -121,6 +121,22 @@ DATA_EFFECT: dict[tuple[str, str | None], str] = {
 }
 
 
+# Case-file data that only one friction law reads (freefem/contact.idp): key -> (the key
+# naming the law, the law that reads it). Under another law the key may be left out.
+LAW_DATA: dict[tuple[str, str], tuple[str, str]] = {
+    ("contact", "S"): ("friction_law", "tresca"),
+}
+
+
+def unread_by_law(section: str, key: str, given: dict[str, Any], keys: dict[str, "Key"]) -> bool:
+    """Whether the law a section names (or its default) never reads this key."""
+    law = LAW_DATA.get((section, key))
+    if law is None:
+        return False
+    law_key, reader = law
+    return given.get(law_key, keys[law_key].default) != reader
+
+
 def effect_of(section: str, key: str) -> str | None:
     """The effect a case-file value belongs to (None: always used)."""
     return DATA_EFFECT.get((section, key)) or DATA_EFFECT.get((section, None))
@@ -182,6 +198,9 @@ SCHEMA: dict[str, dict[str, Key]] = {
     "contact": {
         "c_nu": Key(float, check=positive),
         "gap": Key(float),
+        # Tresca's slip bound [N/m^2]: a friction stress the contact holds whatever its
+        # pressure, so it grips the body even where the contact is open (docs/model.md).
+        # Required by Tresca only (LAW_DATA).
         "S": Key(float, check=nonnegative),
         # The slip bound (freefem/contact.idp, docs/laws.md): tresca, R = S; coulomb,
         # R = mu c_nu (u_nu - g)_+, mu times the normal pressure (S is then not used).

@@ -30,8 +30,11 @@ def test_every_key_output_idp_writes_is_declared():
     history, _ = written(FREEFEM / "json.idp")  # the Newton history, shared with parallel.json
     top |= history
     reference, _ = written(FREEFEM / "reference_error.idp")
+    estimator, _ = written(FREEFEM / "estimator.idp")
+    reference |= estimator  # both write their keys through a macro output.idp calls
     assert {"n", "converged", "checks", "max_abs_u", "mms_errors"} <= top  # the parse finds them
     assert {"reference_errors", "reference_s"} <= reference
+    assert {"estimator", "estimator_norms"} <= estimator
     assert (top | reference) - KEYS == set()
     assert checks == CHECK_KEYS
     # The per-field ranges ("min_" + name) of the scalar fields the harness knows.

@@ -100,6 +100,23 @@ def test_a_missing_required_key_is_named(paper_case, tmp_path):
         load_scene(case)
 
 
+def test_coulomb_needs_no_tresca_bound(tmp_path):
+    """contact.S is Tresca's alone: a Coulomb case may leave it out (it used to fail with
+    'missing key contact.S'); FreeFEM is then not given one."""
+    coulomb = Path(__file__).parent.parent / "cases" / "coulomb.toml"
+    case = edited(coulomb, tmp_path, "S = 8.5", "")
+    params = load_scene(case).solver_parameters()["contact"]
+    assert params["friction_law"] == "coulomb" and params["mu"] == 0.3
+    assert "S" not in params
+
+
+def test_tresca_still_needs_its_bound(tmp_path):
+    coulomb = Path(__file__).parent.parent / "cases" / "coulomb.toml"
+    case = edited(coulomb, tmp_path, "S = 8.5", "")
+    with pytest.raises(SceneError, match=r"missing key contact\.S"):
+        load_scene(case, ["contact.friction_law=tresca"])
+
+
 @pytest.mark.parametrize(
     "override, key",
     [

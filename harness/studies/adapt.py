@@ -1,0 +1,184 @@
+"""`python -m harness adapt CASE`: adaptive refinement driven by the a posteriori error
+estimate, in 2D (docs/adaptivity.md), into results/adapt/<case>/.
+
+Each step solves on the refinement of the step before: Dörfler marking of the recovery
+estimate (--bulk), newest-vertex bisection. The true error of every step, and of the case's
+uniform levels, is measured against one overkill reference (the last mesh bisected twice),
+or against the exact fields of a manufactured case.
+Writes adapt.csv (per step: dofs, the estimate and the error per field, Newton iterations,
+time, memory, mesh quality), uniform.csv, summary.json (rates in N per field: 0.5 is
+optimal in 2D), adapt.png (error against dofs, adaptive and uniform) and mesh.png (the
+last adapted mesh).
+"""
+
+from __future__ import annotations
+
+import argparse
+import math
+import os
+import sys
+from pathlib import Path
+
+import pandas as pd
+
+from harness.adapt import Adaptation, adapt, check_adaptable, errors_against, uniform_runs
+from harness.arguments import add_case, add_common, positive_int
+from harness.engine import quiet
+from harness.fields import read_fields
+from harness.layout import Layout
+from harness.norm_table import FIELD_NAMES, error_label
+from harness.pipeline import Guarded, Plan, run_pipeline, scene_of
+from harness.rates import slope_fit
+from harness.run import check_solver_files
+from harness.writers import PRECISE_CSV_FORMAT, write_csv, write_json
+
+
+def bulk_fraction(text: str) -> float:
+    try:
+        value = float(text)
+    except ValueError:
+        raise argparse.ArgumentTypeError(f"not a number: {text!r}") from None
+    if not 0 < value <= 1:
+        raise argparse.ArgumentTypeError(f"must be in (0, 1], not {text}")
+    return value
+
+
+def add_arguments(parser: argparse.ArgumentParser) -> None:
+    add_case(parser)
+    parser.add_argument("--steps", type=positive_int, default=12,
+                        help="solves at most, the first on the case's coarsest mesh (default 12)")
+    parser.add_argument("--bulk", type=bulk_fraction, default=0.5,
+                        help="Dörfler's fraction: refine the fewest cells that hold this share of the "
+                             "squared estimate (0 < bulk <= 1; 1 refines everything; default 0.5)")
+    parser.add_argument("--max-dofs", type=positive_int, default=None,
+                        help="stop after the first step with at least this many unknowns")
+    add_common(parser)
+
+
+def rate_in_dofs(dofs: pd.Series, errors: pd.Series, dimension: int) -> float:
+    """The error's decay rate in the number of unknowns N (err ~ N^-rate; 1/d is optimal)."""
+    fit = slope_fit((dofs.astype(float) ** (-1.0 / dimension)).tolist(), errors.tolist())
+    return fit.slope / dimension
+
+
+def run(args: argparse.Namespace) -> int:
+    scene = scene_of(args.case, args.overrides)
+    check_adaptable(scene)
+    reference_scene = scene_of(args.case, [*args.overrides, f'scene.name="{scene.name}_reference"'])
+    uniform_scene = scene_of(args.case, [*args.overrides, f'scene.name="{scene.name}_uniform"'])
+    layout = Layout(results=args.results / "adapt", freefem=args.freefem)
+    out = layout.case_dir(scene.name)
+    plan = Plan(layout.results, (Guarded(scene, (scene.levels[0],)), Guarded(uniform_scene)),
+                scene_dirs=(out,), ignore_memory=args.ignore_memory,
+                locked=(layout.case_dir(reference_scene.name), layout.case_dir(uniform_scene.name)))
+    print(f"adapt {scene.name}: up to {args.steps} steps, bulk {args.bulk}, into {out}", file=sys.stderr)
+
+    def runs() -> tuple[Adaptation, dict]:
+        check_solver_files(scene, layout)
+        adaptation = adapt(scene, reference_scene, layout, args.steps, args.bulk, args.max_dofs, args.force,
+                           quiet, lambda line: print(line, file=sys.stderr, flush=True))
+        uniform = uniform_runs(uniform_scene, layout, tuple(scene.levels), args.force, quiet)
+        return adaptation, uniform
+
+    def report(result: tuple[Adaptation, dict]) -> None:
+        adaptation, uniform = result
+        reference = read_fields(adaptation.reference.solution)
+        fields = scene.fields
+        # A manufactured case measures every run against its exact fields, in the same norms.
+        exact = bool(scene.manufactured)
+
+        def errors(run) -> dict[str, float]:  # noqa: ANN001 (a RunResult)
+            return dict(run.record.mms_measure_errors) if exact else errors_against(reference, run, fields)
+
+        rows = []
+        for step in adaptation.steps:
+            r = step.run.record
+            err = errors(step.run)
+            rows.append({"step": step.index, "dofs": r.dofs, "cells": step.cells, "marked": step.marked,
+                         **{f"eta_{f}": (r.estimator or {}).get(f, math.nan) for f in fields},
+                         **{f"err_{f}": err[f] for f in fields},
+                         "newton_iterations": r.newton_iterations, "wall_s": r.wall_s, "peak_mib": r.peak_rss_mb,
+                         **step.quality})
+        table = pd.DataFrame(rows)
+        flat = pd.DataFrame([{"n": n, "dofs": run.record.dofs,
+                              **{f"err_{f}": errors(run)[f] for f in fields},
+                              "newton_iterations": run.record.newton_iterations, "wall_s": run.record.wall_s,
+                              "peak_mib": run.record.peak_rss_mb}
+                             for n, run in sorted(uniform.items()) if run.record.dofs < adaptation.reference.record.dofs])
+        write_csv(table, out / "adapt.csv", PRECISE_CSV_FORMAT)
+        write_csv(flat, out / "uniform.csv", PRECISE_CSV_FORMAT)
+        # The rate of the error over the later half of the steps that are at least 16 times
+        # coarser than the reference (closer to it, the reference's own error biases the
+        # measured error low and the rate high); the rate of the estimate, which needs no
+        # reference, over the whole later half.
+        later = table.iloc[len(table) // 2:]
+        window = later if exact else later[later["dofs"] * 16 <= adaptation.reference.record.dofs]
+        summary = {
+            "case": scene.name, "steps": len(table), "bulk": args.bulk,
+            "errors_against": "the exact fields" if exact else "the reference",
+            "reference": {"dofs": adaptation.reference.record.dofs,
+                          "mesh": os.path.relpath(adaptation.reference_mesh, out),
+                          "estimate": adaptation.reference.record.estimator},
+            "rate_in_dofs": {"optimal": 1.0 / scene.dimension,
+                             "adaptive": {f: rate_in_dofs(window["dofs"], window[f"err_{f}"], scene.dimension) for f in fields},
+                             "adaptive_estimate": {f: rate_in_dofs(later["dofs"], later[f"eta_{f}"], scene.dimension)
+                                                   for f in fields},
+                             "adaptive_steps": window["step"].tolist(),
+                             "uniform": {f: rate_in_dofs(flat["dofs"], flat[f"err_{f}"], scene.dimension) for f in fields}},
+            "effectivity_last": {f: table[f"eta_{f}"].iloc[-1] / table[f"err_{f}"].iloc[-1] for f in fields},
+        }
+        write_json(summary, out / "summary.json")
+        plot_adapt(table, flat, fields, summary, out / "adapt.png")
+        plot_mesh(adaptation.steps[-1].mesh, out / "mesh.png", scene.name)
+        print(table[["step", "dofs", *[f"eta_{f}" for f in fields], *[f"err_{f}" for f in fields],
+                     "newton_iterations"]].to_string(index=False, float_format=lambda v: f"{v:.4g}"))
+        rates = summary["rate_in_dofs"]
+        print("rates in N (optimal {:.2f}): adaptive {} (its estimate {}); uniform {}".format(
+            rates["optimal"], *(", ".join(f"{f} {v:.2f}" for f, v in rates[k].items())
+                                for k in ("adaptive", "adaptive_estimate", "uniform"))))
+
+    run_pipeline(plan, runs, report)
+    return 0
+
+
+def plot_adapt(table: pd.DataFrame, flat: pd.DataFrame, fields: tuple[str, ...], summary: dict, path: Path) -> None:
+    import matplotlib
+
+    matplotlib.use("Agg")
+    import matplotlib.pyplot as plt
+
+    figure, axes = plt.subplots(1, len(fields), figsize=(4.2 * len(fields), 3.8), squeeze=False)
+    rates = summary["rate_in_dofs"]
+    for ax, f in zip(axes[0], fields):
+        ax.loglog(table["dofs"], table[f"err_{f}"], "o-", label=f"adaptive ({rates['adaptive'][f]:.2f})")
+        ax.loglog(table["dofs"], table[f"eta_{f}"], ":", color="C0",
+                  label=f"its estimate ({rates['adaptive_estimate'][f]:.2f})")
+        if len(flat):
+            ax.loglog(flat["dofs"], flat[f"err_{f}"], "s--", label=f"uniform ({rates['uniform'][f]:.2f})")
+        ax.set_xlabel("unknowns N")
+        ax.set_title(error_label(f) if f in FIELD_NAMES else f)
+        ax.legend(fontsize=8, title="rate in N", title_fontsize=8)
+        ax.grid(True, which="both", alpha=0.3)
+    figure.suptitle(f"{summary['case']}: error against unknowns (optimal rate {rates['optimal']:.2f})")
+    figure.tight_layout()
+    path.parent.mkdir(parents=True, exist_ok=True)
+    figure.savefig(path, dpi=110)
+    plt.close(figure)
+
+
+def plot_mesh(mesh: Path, path: Path, name: str) -> None:
+    import matplotlib
+
+    matplotlib.use("Agg")
+    import matplotlib.pyplot as plt
+    import meshio
+
+    m = meshio.read(mesh)
+    triangles = [b.data for b in m.cells if b.type == "triangle"][0]
+    figure, ax = plt.subplots(figsize=(8, 4.5))
+    ax.triplot(m.points[:, 0], m.points[:, 1], triangles, linewidth=0.25, color="k")
+    ax.set_aspect("equal")
+    ax.set_title(f"{name}: the last adapted mesh ({len(triangles)} cells)")
+    figure.tight_layout()
+    figure.savefig(path, dpi=130)
+    plt.close(figure)
