@@ -1,5 +1,5 @@
 """A level's real lengths: its largest cell (h_max, in the model's units, whatever n says) and
-how many cells lie through each body's thinnest section.
+how many cells lie through the thinnest section of each part of the body.
 
 n is a label of the level (the rectangle's and box's h = 1/n; a gmsh scene's coarsest mesh
 and its splits), not a length: a 20 mm part at n = 2 need not have cells of 0.5. h_max is

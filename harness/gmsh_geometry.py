@@ -227,15 +227,21 @@ def read_geo(file: Path, dimension: int, coarsest: int, contact_names: list[str]
 
 
 def body_pieces(file_name: str, dimension: int) -> tuple[Body, ...]:
-    """Each surface (2D) or volume (3D) by its physical name (or its tag) and bounding box."""
-    out = []
+    """Each physical group of the body (surfaces in 2D, volumes in 3D; the entities in none
+    together) by its name and the bounding box of its entities: a part, whatever pieces it was
+    drawn in (a strip drawn as three surfaces is one 20 x 1 part, not a 0.5 x 1 piece)."""
+    boxes: dict[str, list[list[float]]] = {}
     for _, tag in gmsh.model.getEntities(dimension):
         groups = gmsh.model.getPhysicalGroupsForEntity(dimension, tag)
-        names = [gmsh.model.getPhysicalName(dimension, int(g)) for g in groups]
-        what = "surface" if dimension == 2 else "volume"
-        label = f"{file_name}: {what} {tag}" + (f" of {names[0]!r}" if names and names[0] else "")
-        box = gmsh.model.getBoundingBox(dimension, tag)
-        out.append(Body(label, tuple(float(x) for x in box[:dimension]), tuple(float(x) for x in box[3:3 + dimension])))
+        name = next((gmsh.model.getPhysicalName(dimension, int(g)) or str(g) for g in groups), "")
+        boxes.setdefault(name, []).append(list(gmsh.model.getBoundingBox(dimension, tag)))
+    what = "surface" if dimension == 2 else "volume"
+    out = []
+    for name, found in boxes.items():
+        box = np.array(found)
+        label = f"{file_name}: physical {what} {name!r}" if name else f"{file_name}: the body"
+        out.append(Body(label, tuple(float(x) for x in box[:, :dimension].min(axis=0)),
+                        tuple(float(x) for x in box[:, 3:3 + dimension].max(axis=0))))
     return tuple(out)
 
 

@@ -71,3 +71,14 @@ def test_solve_warns_of_a_level_with_one_cell_through_the_thickness(capsys, tmp_
     assert code == 0, err
     assert [line for line in err if line.startswith("warning: level n=2: 1.0 cell(s) through the thinnest section "
                                                    "of the rectangle")], err
+
+
+def test_a_gmsh_part_drawn_in_pieces_is_one_part():
+    """The cantilever is three surfaces of one physical surface: its thinnest section is the
+    20 x 1 mm part's 1 mm, not the 0.5 mm width of its margin piece."""
+    from harness.layout import REPO
+    from harness.scene import load_scene
+
+    [part] = load_scene(REPO / "cases" / "cantilever.toml").geometry.bodies()
+    assert part.name == "cantilever.geo: physical surface 'PZT-5H'"
+    assert part.lo == pytest.approx((0.0, 0.0), abs=1e-9) and part.hi == pytest.approx((0.02, 0.001), rel=1e-9)
