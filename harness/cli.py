@@ -58,7 +58,7 @@ def parser(chosen: str | None) -> Parser:
     commands = top.add_subparsers(dest="command", required=True, parser_class=Parser, metavar="COMMAND",
                                   help=argparse.SUPPRESS)
     for name, text in STUDIES.items():
-        sub = commands.add_parser(name, help=text, description=text,
+        sub = commands.add_parser(name, prog=f"python -m harness {name}", help=text, description=text,
                                   formatter_class=argparse.RawDescriptionHelpFormatter)
         if name == chosen:
             module = plugin(name)

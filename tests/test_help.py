@@ -29,6 +29,7 @@ def test_a_subcommands_help_has_no_internal_reference_and_explains_every_option(
     text = help_text(capsys, name)
     assert not INTERNAL.search(text), INTERNAL.search(text)
     sub = next(a for a in parser(name)._actions if isinstance(a, argparse._SubParsersAction)).choices[name]
+    assert text.startswith(f"usage: python -m harness {name} ")  # its own usage, not the top level's
     for action in sub._actions:
         # A sentence, not a label: at least a few words.
         assert action.help and len(action.help.split()) >= 4, (name, action.option_strings or action.dest)
