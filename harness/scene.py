@@ -14,7 +14,7 @@ from harness.errors import SceneError
 from harness.petsc_plugin import default_options, factorising, multigrid
 from harness.box import Box, parse_box
 from harness.gmsh_geometry import GmshGeometry, check_poling, parse_gmsh
-from harness.schema import EFFECTS, REQUIRED, SCHEMA, SOLVER_SECTIONS, Key, effect_of, geometry_keys
+from harness.schema import EFFECTS, REQUIRED, SCHEMA, SOLVER_SECTIONS, Key, effect_of, geometry_keys, unbounded_keys
 from harness.sections import sections_of
 from harness.segments import Geometry, parse_geometry
 from harness.unknowns import Unknowns
@@ -251,6 +251,8 @@ def checked(name: str, spec: Key, value: Any) -> Any:
     value = coerced(name, spec.kind, value)
     if isinstance(value, float) and math.isnan(value):
         raise SceneError(f"{name} = nan is not a number")
+    if isinstance(value, float) and math.isinf(value) and not spec.unbounded:
+        raise SceneError(f"{name} = {value} must be a finite number (only {', '.join(unbounded_keys())} may be inf)")
     complaint = spec.check(value) if spec.check else None
     if complaint:
         raise SceneError(f"{name} = {value!r} {complaint}")

@@ -61,6 +61,15 @@ def test_a_bad_set_key(capsys, stub_layout, paper_case):
     one_error_line(err, "contact.mu_static")
 
 
+@pytest.mark.parametrize("override", ["electric_contact.k_e=inf", "thermal_contact.theta_f=inf",
+                                      "loads.traction_y=inf", "contact.c_nu=inf"])
+def test_inf_is_bad_input_before_anything_is_made(capsys, stub_layout, paper_case, override):
+    code, err, _ = solve(capsys, stub_layout, paper_case, "--set", override)
+    assert code == 2
+    one_error_line(err, override.partition("=")[0], "finite")
+    assert not stub_layout.results.exists()
+
+
 @pytest.mark.parametrize("argv", [["convergence", "x.toml", "--levels", "2,x"], ["solve", "x.toml"], ["nope"]])
 def test_bad_command_lines_are_one_line_too(capsys, argv):
     with pytest.raises(SystemExit) as info:
