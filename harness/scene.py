@@ -18,6 +18,7 @@ from harness.schema import EFFECTS, REQUIRED, SCHEMA, SOLVER_SECTIONS, Key, effe
 from harness.sections import sections_of
 from harness.segments import Geometry, parse_geometry
 from harness.unknowns import Unknowns
+from harness.well_posed import check_fixed
 
 
 @dataclass(frozen=True)
@@ -169,6 +170,7 @@ def load_scene(path: Path, overrides: Iterable[str] = ()) -> Scene:
         table, warnings = resolve(raw)
         geometry = parse_any_geometry(table, path.parent)
         check_poling(table["scene"]["poling_axis"], getattr(geometry, "dimension", 2))
+        check_fixed(geometry, table["scene"]["effects"], table)
         check_expect(table["expect"])
     except SceneError as exc:
         raise SceneError(f"{path}: {exc}") from None  # every case-file error names the file
