@@ -29,6 +29,11 @@ from harness.unknowns import Unknowns
 MPI_PLUGIN_PATH = "/usr/lib/freefem++/mpi"  # plugins built against MPI (the others abort in FreeFem++-mpi)
 IDP_PATH = "/usr/include/freefem++/idp"  # macro_ddm.idp, from Debian's libfreefem++-dev
 PARALLEL_SCHEME = "parallel.idp"
+# Launchers that pass the arguments after the script through a shell's `eval`, so a path
+# with a space or a quote would be split or mangled there: Debian's ff-mpirun builds the
+# mpiexec command as a string and runs `eval "${a[*]}"`. Each argument is quoted for it;
+# mpiexec, srun and the like pass their arguments on as given.
+EVALUATING_LAUNCHERS = ("ff-mpirun",)
 # The Newton history the distributed solve owns (run.json takes these from parallel.json).
 NEWTON_KEYS = ("converged", "reason", "newton_iterations", "residuals", "increments", "error_estimates",
                "damping", "consistent_tangent", "active_nodes", "slip_nodes", "active_set_changes")
@@ -50,7 +55,10 @@ class Ranks:
             head = shlex.split(self.launcher.format(ranks=self.count))
         except (KeyError, IndexError, ValueError) as exc:
             raise SceneError(f"run.launcher {self.launcher!r} is not a command with {{ranks}}: {exc}") from None
-        return [*head, script.name, "-nw", "-v", "0", *options]
+        args = ["-nw", "-v", "0", *options]
+        if head and Path(head[0]).name in EVALUATING_LAUNCHERS:
+            args = [shlex.quote(arg) for arg in args]  # that shell splits them once more
+        return [*head, script.name, *args]
 
 
 def ranks_of(scene: Any) -> Ranks:

@@ -97,6 +97,25 @@ def test_what_the_ranks_cannot_do_is_refused_before_running(override, message, t
     check_parallel(load_scene(CASES / "paper.toml", [override]))  # one rank: anything goes
 
 
+def test_ff_mpirun_gets_each_argument_quoted_for_its_eval():
+    """Debian's ff-mpirun runs `eval` on the command it builds: an unquoted path with a space
+    was split there (FreeFEM: "Unable to open file .../a"); mpiexec or srun take argv as given."""
+    options = ["-mesh", "/r/a b/mesh_n2.msh", "-out", "/r/it's"]
+    argv = Ranks(2, "ff-mpirun -np {ranks}").argv(Path("/w/main.edp"), options)
+    assert argv == ["ff-mpirun", "-np", "2", "main.edp", "-nw", "-v", "0", "-mesh", "'/r/a b/mesh_n2.msh'",
+                    "-out", "'/r/it'\"'\"'s'"]
+    assert Ranks(2, "mpiexec -np {ranks} FreeFem++-mpi").argv(Path("main.edp"), options)[-4:] == options
+
+
+@pytest.mark.skipif(bool(mpi_missing()), reason=mpi_missing() or "-")
+def test_a_results_path_with_a_space_runs_on_two_ranks(tmp_path):
+    results = tmp_path / "out" / "a b"
+    (tmp_path / "out" / "a").mkdir(parents=True)  # the cut-off path exists: the run hung to its timeout
+    run = solve(CASES / "paper.toml", 2, results, "run.ranks=2", "run.timeout_s=60")
+    assert run.record.converged and run.record.ranks == 2
+    assert (results / "paper" / "n2" / "solution.vtu").is_file()
+
+
 def test_ranks_must_be_positive():
     with pytest.raises(SceneError, match="ranks"):
         load_scene(CASES / "paper.toml", ["run.ranks=0"])
