@@ -23,7 +23,7 @@ from typing import Callable, Sequence, TypeVar
 
 from harness.atomic import StudyTransaction
 from harness.errors import VerdictError
-from harness.faults import check_results_root
+from harness.faults import check_results_root, naming
 from harness.guards import check_memory, check_nested, geometry_depth, mesh_file_bytes, need_disk
 from harness.scene import Scene, load_scene
 
@@ -94,7 +94,9 @@ def run_pipeline(plan: Plan, runs: Callable[[], R], report: Callable[[R], object
     check_guards(plan)
     with StudyTransaction(*plan.scene_dirs, outputs=plan.outputs):
         result = runs()
-        report(result)
+        # A write that names no file of its own is said to be in the study's first directory.
+        with naming(next(iter((*plan.outputs, *plan.scene_dirs)), plan.results)):
+            report(result)
     failure = verdict(result)
     if failure:
         raise VerdictError(failure)
