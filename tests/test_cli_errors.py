@@ -54,6 +54,26 @@ def test_an_unknown_material_fails_before_anything_is_made(capsys, stub_layout, 
     assert not stub_layout.results.exists()
 
 
+@pytest.mark.parametrize("study", [["solve", "--n", "2"], ["convergence", "--levels", "2,4"], ["cost"]])
+def test_a_missing_freefem_scripts_directory_is_named(capsys, tmp_path, paper_case, study):
+    # It said "unknown material 'BaTiO3'" (and cost ignored --freefem altogether).
+    missing = tmp_path / "nonexistent"
+    code = main([study[0], str(paper_case), *study[1:], "--results", str(tmp_path / "results"),
+                 "--freefem", str(missing)])
+    assert code == 2
+    one_error_line(capsys.readouterr().err.strip().splitlines(),
+                   f"--freefem {missing}: the FreeFEM scripts directory does not exist")
+    assert not (tmp_path / "results").exists()
+
+
+def test_a_freefem_directory_without_the_scheme_is_named(capsys, tmp_path, paper_case):
+    code = main(["solve", str(paper_case), "--n", "2", "--results", str(tmp_path / "results"),
+                 "--freefem", str(tmp_path)])
+    assert code == 2
+    one_error_line(capsys.readouterr().err.strip().splitlines(), f"--freefem {tmp_path}: not a FreeFEM scripts "
+                   "directory (no scheme.idp)")
+
+
 def test_a_bad_set_key(capsys, stub_layout, paper_case):
     # (contact.mu exists since Coulomb friction: a static coefficient does not.)
     code, err, _ = solve(capsys, stub_layout, paper_case, "--set", "contact.mu_static=0.3")
