@@ -90,6 +90,33 @@ def test_inf_is_bad_input_before_anything_is_made(capsys, stub_layout, paper_cas
     assert not stub_layout.results.exists()
 
 
+@pytest.mark.parametrize("address", ["notaurl", "tcp://localhost", "http://localhost:8786", "", " ", "tcp://:8786",
+                                     "tcp://localhost:0", "tcp://localhost:99999"])
+@pytest.mark.parametrize("study", ["stress", "scenes", "branches"])
+def test_a_bad_scheduler_address_is_one_line_before_anything_runs(capsys, tmp_path, study, address):
+    # It was a ValueError traceback from Dask (exit 1), and "" silently ran in this process.
+    with pytest.raises(SystemExit) as info:
+        main([study, "--scheduler", address, "--results", str(tmp_path / "results")])
+    assert info.value.code == 2
+    one_error_line(capsys.readouterr().err.strip().splitlines(), "--scheduler", repr(address),
+                   "SCHEME://HOST:PORT")
+    assert not (tmp_path / "results").exists()
+
+
+def test_an_empty_cluster_is_refused_too(capsys, tmp_path):
+    with pytest.raises(SystemExit) as info:
+        main(["stress", "--cluster", "", "--results", str(tmp_path / "results")])
+    assert info.value.code == 2
+    one_error_line(capsys.readouterr().err.strip().splitlines(), "--cluster", "local:N")
+
+
+@pytest.mark.parametrize("address", ["tcp://127.0.0.1:8786", "tls://scheduler.example:8786", "tcp://[::1]:8786"])
+def test_a_scheduler_address_with_scheme_host_and_port_is_taken(address):
+    from harness.executor import scheduler_address
+
+    assert scheduler_address(address) == address
+
+
 @pytest.mark.parametrize("argv", [["convergence", "x.toml", "--levels", "2,x"], ["solve", "x.toml"], ["nope"]])
 def test_bad_command_lines_are_one_line_too(capsys, argv):
     with pytest.raises(SystemExit) as info:
