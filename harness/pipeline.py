@@ -24,6 +24,7 @@ from typing import Callable, Sequence, TypeVar
 from harness.atomic import StudyTransaction
 from harness.errors import VerdictError
 from harness.faults import check_results_root, naming
+from harness.launcher import check_level_ranks
 from harness.guards import check_memory, check_nested, geometry_depth, mesh_file_bytes, need_disk
 from harness.scene import Scene, load_scene
 
@@ -75,6 +76,10 @@ def check_guards(plan: Plan) -> None:
             print(f"warning: {warning}", file=sys.stderr)
         if plan.nested:
             check_nested(levels)
+        for n in levels:
+            fewer = check_level_ranks(scene, n)
+            if fewer:
+                print(f"warning: {fewer}", file=sys.stderr)
         if not plan.ignore_memory:
             check_memory(scene.geometry.width, scene.geometry.height, levels, scene.effects, scene.element,
                          depth=geometry_depth(scene.geometry), factorises=scene.factorises,

@@ -3,6 +3,7 @@
 from __future__ import annotations
 
 import copy
+import dataclasses
 import hashlib
 import math
 import tomllib
@@ -144,6 +145,15 @@ class Scene:
             **({"manufactured": self.manufactured} if self.manufactured else {}),
             **({"reference_sha256": sha256_file(self.reference_state)} if self.reference_state else {}),
         }
+
+    def on_ranks(self, count: int) -> Scene:
+        """The same scene solved on `count` MPI ranks (run.ranks): a level of a chain too
+        small for the scene's ranks runs on fewer (harness/launcher.py level_scene)."""
+        if count == self.sections.run.ranks:
+            return self
+        table = {**self.table, "run": {**self.table["run"], "ranks": count}}
+        sections = dataclasses.replace(self.sections, run=dataclasses.replace(self.sections.run, ranks=count))
+        return dataclasses.replace(self, table=table, sections=sections)
 
     @property
     def reference_state(self) -> str:
