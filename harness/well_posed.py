@@ -34,10 +34,8 @@ def friction_holds(effects: Collection[str], contact: dict[str, Any]) -> bool:
     """Whether a pressed contact part holds the body tangentially: the friction effect with
     a slip bound that is not identically zero (Tresca S > 0, or Coulomb mu > 0)."""
     if "friction" not in effects:
-        return False
-    if contact.get("friction_law", "tresca") == "coulomb":
-        return contact.get("mu", 0.0) > 0
-    return contact.get("S", 0.0) > 0
+        return False  # (and the friction keys are not in the resolved table)
+    return (contact["mu"] if contact["friction_law"] == "coulomb" else contact["S"]) > 0
 
 
 def u_fixed(geometry: Geometry, effects: Collection[str], contact: dict[str, Any]) -> bool:
@@ -53,10 +51,9 @@ def u_fixed(geometry: Geometry, effects: Collection[str], contact: dict[str, Any
     if pressed and friction_holds(effects, contact):
         return True
     d = geometry.dimension
-    held = [np.eye(d)[i] for i, roller in enumerate(ROLLERS[:d]) if roller in used]
-    if pressed:
-        held += list(geometry.contact_normals())
-    return bool(held) and np.linalg.matrix_rank(np.array(held), tol=1e-9 * max(np.abs(held).max(), 1e-300)) == d
+    axes = np.eye(d)[[i for i, roller in enumerate(ROLLERS[:d]) if roller in used]]
+    held = np.vstack([axes, geometry.contact_normals()]) if pressed else axes
+    return held.size > 0 and np.linalg.matrix_rank(held, tol=1e-9 * np.abs(held).max()) == d
 
 
 def check_fixed(geometry: Geometry, effects: Collection[str], table: dict[str, dict[str, Any]]) -> None:
