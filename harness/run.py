@@ -15,7 +15,7 @@ from harness import freefem, launcher, petsc_plugin
 from harness.atomic import OLD_PREFIX, RUN_TEMP_PREFIX, write_atomic
 from harness.contract import Failure
 from harness.cache import cached_record, run_inputs, sha256_file, write_checksums
-from harness.errors import EnvironmentFault, RunError, SceneError
+from harness.errors import EnvironmentFault, HarnessError, RunError, SceneError
 from harness.gmsh_geometry import GmshGeometry
 from harness.faults import disk_full, space_for
 from harness.signals import CHILDREN, Interrupted
@@ -68,13 +68,16 @@ class RunResult:
 
 
 def check_solver_files(scene: Scene, layout: Layout) -> None:
-    """Fail before meshing or running when the case names a material the repo lacks."""
+    """Fail before meshing or running when the solver scripts (--freefem) are not there, or
+    the case names a material they lack."""
+    if not layout.freefem.is_dir():
+        raise HarnessError(f"--freefem {layout.freefem}: the FreeFEM scripts directory does not exist")
+    if not layout.scheme_file().is_file():
+        raise HarnessError(f"--freefem {layout.freefem}: not a FreeFEM scripts directory (no {layout.scheme_file().name})")
     wanted = layout.material_file(scene.material)
     if not wanted.is_file():
         available = ", ".join(sorted(p.stem for p in wanted.parent.glob("*.idp"))) or "none"
         raise SceneError(f"unknown material {scene.material!r}: no {wanted} (available: {available})")
-    if not layout.scheme_file().is_file():
-        raise RunError(f"no solver script {layout.scheme_file()}")
 
 
 def run_level(
@@ -97,6 +100,7 @@ class LevelRun:
     def __init__(self, scene: Scene, mesh: Path, n: int, layout: Layout, force: bool = False) -> None:
         check_solver_files(scene, layout)
         launcher.check_parallel(scene)
+        scene = launcher.level_scene(scene, n)  # on as many of run.ranks as the level can take
         self.scene, self.mesh, self.n, self.layout, self.force = scene, mesh, n, layout, force
         self.work: Path | None = None
         self.launched: freefem.Launched | None = None

@@ -30,6 +30,9 @@ class Key:
     kind: type
     default: Any = REQUIRED
     check: Check | None = None
+    # What an infinite value means, for the few keys where it is data ("none"); blank: a
+    # number must be finite (inf is refused like nan, never passed on as a huge number).
+    unbounded: str = ""
 
     @property
     def required(self) -> bool:
@@ -200,7 +203,7 @@ SCHEMA: dict[str, dict[str, Key]] = {
         "k_e": Key(float, check=nonnegative),
         "eps_e": Key(float, check=positive),
         "phi_f": Key(float),
-        "L": Key(float, check=positive),
+        "L": Key(float, check=positive, unbounded="no truncation: phi_L is the identity"),
     },
     "thermal_contact": {
         "k_c": Key(float, check=nonnegative),
@@ -298,6 +301,11 @@ GMSH_GEOMETRY: dict[str, Key] = {
     # from; 0: the smallest of study.levels.
     "coarsest": Key(int, 0, nonnegative),
 }
+
+
+def unbounded_keys() -> list[str]:
+    """The keys an infinite value is documented for ("section.key")."""
+    return [f"{section}.{key}" for section, keys in SCHEMA.items() for key, spec in keys.items() if spec.unbounded]
 
 
 def geometry_keys(given: dict[str, Any]) -> dict[str, Key]:
