@@ -54,7 +54,7 @@ def test_an_unknown_material_fails_before_anything_is_made(capsys, stub_layout, 
     assert not stub_layout.results.exists()
 
 
-@pytest.mark.parametrize("study", [["solve", "--n", "2"], ["convergence", "--levels", "2,4"], ["cost"]])
+@pytest.mark.parametrize("study", [["solve", "--n", "2"], ["convergence", "--levels", "2,4,8"], ["cost"]])
 def test_a_missing_freefem_scripts_directory_is_named(capsys, tmp_path, paper_case, study):
     # It said "unknown material 'BaTiO3'" (and cost ignored --freefem altogether).
     missing = tmp_path / "nonexistent"
