@@ -5,9 +5,10 @@ from __future__ import annotations
 import argparse
 import os
 from pathlib import Path
-from typing import NoReturn
+from typing import Any, Callable, NoReturn
 
 from harness.contract import ExitCode
+from harness.errors import SceneError
 from harness.layout import REPO, Layout
 
 
@@ -28,8 +29,22 @@ def positive_int(text: str) -> int:
 
 
 def level_list(text: str) -> tuple[int, ...]:
-    """`2,4,8` -> (2, 4, 8): positive, in the order given (empty parts skipped)."""
-    return tuple(positive_int(part.strip()) for part in text.split(",") if part.strip())
+    """`2,4,8` -> (2, 4, 8): positive, in the order given; '' -> () (an option's "none")."""
+    if not text.strip():
+        return ()
+    parts = [part.strip() for part in text.split(",")]
+    if "" in parts:
+        raise argparse.ArgumentTypeError(f"{text!r} has an empty level between its commas")
+    return tuple(positive_int(part) for part in parts)
+
+
+def study_levels(text: str) -> tuple[int, ...]:
+    """A study's --levels: as level_list, but never empty (leaving the option out means the
+    case's own levels; an empty value is a mistake, not that)."""
+    levels = level_list(text)
+    if not levels:
+        raise argparse.ArgumentTypeError("no levels given (leave --levels out for the case's own)")
+    return levels
 
 
 def name_list(text: str) -> list[str]:
@@ -48,7 +63,7 @@ def add_case(parser: argparse.ArgumentParser, optional: bool = False) -> None:
 
 def add_levels(parser: argparse.ArgumentParser, default: tuple[int, ...] | None = None,
                what: str = "the case's") -> None:
-    parser.add_argument("--levels", type=level_list, default=default,
+    parser.add_argument("--levels", type=study_levels, default=default,
                         help=f"comma-separated n = 1/h (default: {what})")
 
 
@@ -73,11 +88,24 @@ def add_memory_override(parser: argparse.ArgumentParser) -> None:
 
 def add_cluster(parser: argparse.ArgumentParser) -> None:
     """--scheduler / --cluster, for a study whose independent pieces can run on a cluster
-    (harness/executor.py's `cluster`)."""
-    parser.add_argument("--scheduler", metavar="tcp://HOST:PORT",
+    (harness/executor.py's `cluster`), each checked as the command line is read."""
+    from harness.executor import parse_cluster, scheduler_address
+
+    parser.add_argument("--scheduler", metavar="tcp://HOST:PORT", type=checked_by(scheduler_address),
                         help="run the study's chains on this Dask scheduler (workers share the results path)")
-    parser.add_argument("--cluster", metavar="local:N",
+    parser.add_argument("--cluster", metavar="local:N", type=checked_by(lambda text: parse_cluster(text) and text),
                         help="run them on a local Dask cluster of N worker processes")
+
+
+def checked_by(parse: Callable[[str], Any]) -> Callable[[str], Any]:
+    """An argparse type from a parser that raises SceneError: its one line becomes the error."""
+    def check(text: str) -> Any:
+        try:
+            return parse(text)
+        except SceneError as exc:
+            raise argparse.ArgumentTypeError(str(exc)) from None
+
+    return check
 
 
 def layout_of(args: argparse.Namespace) -> Layout:

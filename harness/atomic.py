@@ -1,5 +1,5 @@
 """Write files so a reader sees either the old content or the new, never half of one; and a
-study's level runs and report together or not at all."""
+study's level runs and report together or not at all, by one study at a time."""
 
 from __future__ import annotations
 
@@ -10,6 +10,12 @@ import re
 import shutil
 import uuid
 from pathlib import Path
+from typing import Collection
+
+from harness.signals import CHILDREN
+from harness.study_lock import DirectoryLocks
+
+from harness.faults import naming
 
 
 def sibling_temp(target: Path) -> Path:
@@ -20,10 +26,11 @@ def sibling_temp(target: Path) -> Path:
 def write_atomic(target: Path, content: str | bytes) -> None:
     tmp = sibling_temp(target)
     try:
-        if isinstance(content, bytes):
-            tmp.write_bytes(content)
-        else:
-            tmp.write_text(content)
+        with naming(target):
+            if isinstance(content, bytes):
+                tmp.write_bytes(content)
+            else:
+                tmp.write_text(content)
         os.replace(tmp, target)
     finally:
         tmp.unlink(missing_ok=True)
@@ -33,6 +40,10 @@ def write_atomic(target: Path, content: str | bytes) -> None:
 REPORT_FILES = ("convergence.csv", "summary.json", "convergence.png", "gci.csv")
 LEVEL_DIR = re.compile(r"n\d+")
 BACKUP_PREFIX = ".backup-"
+# A level's run in progress (run.py: swapped in whole when it succeeds), and a level dir
+# being replaced by one (swap_in, restore): left behind only by a process that died.
+RUN_TEMP_PREFIX = ".tmp-"
+OLD_PREFIX = ".old-"
 
 
 class StudyTransaction:
@@ -45,14 +56,24 @@ class StudyTransaction:
     new run is swapped in whole, run.py), so the links hold the earlier files at no copying
     cost. On success the backups go; on any failure or signal every directory's earlier
     level dirs and files are put back, so each holds the earlier complete study or the new
-    one, never a mix. A backup left by a harness that was SIGKILLed is restored on the next
-    entry."""
+    one, never a mix.
 
-    def __init__(self, *directories: Path, outputs: tuple[Path, ...] = ()) -> None:
+    One study at a time: every directory it owns, and each of `locked` (where its runs write
+    without a report of its own: `solve`'s scene), is locked on entry (study_lock.py), or a
+    StudyBusy (exit 7) before anything is touched. Holding the locks, whatever a dead
+    process left there is stale: a backup is restored, a run's temp dir and a half-swapped
+    level dir are removed, quietly. The temp dirs found on a successful exit are
+    those of runs whose process died during the study, a Dask worker killed while its task
+    was rerun elsewhere (`swept_after`, for the study to report)."""
+
+    def __init__(self, *directories: Path, outputs: tuple[Path, ...] = (), locked: tuple[Path, ...] = ()) -> None:
         tag = f"{BACKUP_PREFIX}{os.getpid()}-{uuid.uuid4().hex[:8]}"
         # An output directory listed as a scene directory too is owned as an output (all its files).
         owned = {Path(d): False for d in directories} | {Path(d): True for d in outputs}
         self.owned = [(directory, every_file, directory / tag) for directory, every_file in owned.items()]
+        self.watched = tuple(dict.fromkeys([*owned, *map(Path, locked)]))
+        self.locks = DirectoryLocks(self.watched)
+        self.swept_after: list[Path] = []
 
     @property
     def backup(self) -> Path:
@@ -60,27 +81,37 @@ class StudyTransaction:
         return self.owned[0][2]
 
     def __enter__(self) -> StudyTransaction:
-        for directory, every_file, backup in self.owned:
-            if not directory.is_dir():
-                continue
-            for stale in directory.glob(f"{BACKUP_PREFIX}*"):
-                if not pid_alive(backup_pid(stale)):
+        self.locks.__enter__()
+        try:
+            for directory, every_file, backup in self.owned:
+                for stale in sorted(directory.glob(f"{BACKUP_PREFIX}*")):  # the lock's: a dead study's
                     restore(stale, directory)
-            backup.mkdir()
-            for item in study_items(directory, every_file):
-                if item.is_dir():
-                    shutil.copytree(item, backup / item.name, copy_function=link_or_copy)
-                else:
-                    link_or_copy(item, backup / item.name)
+            for directory in self.watched:
+                sweep(directory)
+            for directory, every_file, backup in self.owned:
+                backup.mkdir()
+                for item in study_items(directory, every_file):
+                    if item.is_dir():
+                        shutil.copytree(item, backup / item.name, copy_function=link_or_copy)
+                    else:
+                        link_or_copy(item, backup / item.name)
+        except BaseException:
+            self.__exit__(RuntimeError)
+            raise
         return self
 
     def __exit__(self, kind: type | None, *_: object) -> None:
-        for directory, _every_file, backup in self.owned:
-            if not backup.exists():
-                continue
-            if kind is not None:
-                restore(backup, directory)
-            shutil.rmtree(backup, ignore_errors=True)
+        try:
+            for directory, _every_file, backup in self.owned:
+                if not backup.exists():
+                    continue
+                if kind is not None:
+                    restore(backup, directory)
+                shutil.rmtree(backup, ignore_errors=True)
+            live = CHILDREN.live_dirs()  # this process's runs still being torn down
+            self.swept_after = [p for directory in self.watched for p in sweep(directory, keep=live)]
+        finally:
+            self.locks.release()
 
 
 def link_or_copy(source: str | Path, target: str | Path) -> None:
@@ -105,7 +136,7 @@ def restore(backup: Path, case_dir: Path) -> None:
     for item in sorted(backup.iterdir()):
         target = case_dir / item.name
         if item.is_dir():
-            old = case_dir / f".old-{item.name}-{uuid.uuid4().hex[:8]}"
+            old = case_dir / f"{OLD_PREFIX}{item.name}-{uuid.uuid4().hex[:8]}"
             if target.exists():
                 os.replace(target, old)
             os.replace(item, target)
@@ -115,25 +146,19 @@ def restore(backup: Path, case_dir: Path) -> None:
     shutil.rmtree(backup, ignore_errors=True)
 
 
-def backup_pid(backup: Path) -> int:
-    try:
-        return int(backup.name[len(BACKUP_PREFIX):].split("-")[0])
-    except ValueError:
-        return 0
-
-
-def pid_alive(pid: int) -> bool:
-    if pid <= 0:
-        return False
-    if pid == os.getpid():
-        return True
-    try:
-        os.kill(pid, 0)
-    except ProcessLookupError:
-        return False
-    except PermissionError:
-        return True
-    return True
+def sweep(directory: Path, keep: Collection[Path] = ()) -> list[Path]:
+    """Remove the runs' temp dirs and half-swapped level dirs in `directory` (but `keep`'s):
+    called only under the directory's lock, when no live run of another study can own one."""
+    if not directory.is_dir():
+        return []
+    stale = [p for prefix in (RUN_TEMP_PREFIX, OLD_PREFIX) for p in sorted(directory.glob(f"{prefix}*"))
+             if p not in keep]
+    for path in stale:
+        if path.is_dir() and not path.is_symlink():
+            shutil.rmtree(path, ignore_errors=True)
+        else:
+            path.unlink(missing_ok=True)
+    return stale
 
 
 def mixed_levels(case_dir: Path) -> list[int]:

@@ -100,6 +100,14 @@ class Box:
                     & (points[:, b] > patch.b0 - tol) & (points[:, b] < patch.b1 + tol)
         return on
 
+    def used_roles(self) -> frozenset[str]:
+        return frozenset(self.role_areas())
+
+    def contact_normals(self) -> np.ndarray:
+        """The normal axis of each face with a contact patch (rows)."""
+        axes = ["xyz".index(name[0]) for name, patches in self.faces.items() if any(p.role == "contact" for p in patches)]
+        return np.eye(3)[axes]
+
     def role_areas(self) -> dict[str, float]:
         areas = dict.fromkeys(ROLE_LABELS, 0.0)
         for patches in self.faces.values():

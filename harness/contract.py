@@ -41,6 +41,7 @@ class ExitCode(enum.IntEnum):
     ENVIRONMENT = 4  # the machine: permissions, full disk, missing tool, not enough memory
     NO_PEER = 5  # crosscheck: GetFEM (python3-getfem) is not installed
     DISAGREE = 6  # crosscheck: FreeFEM and GetFEM differ by more than 1e-8 relative
+    BUSY = 7  # another study is writing the same results directory: nothing was run
     INTERRUPTED = 130  # SIGINT, SIGTERM or SIGHUP
 
 

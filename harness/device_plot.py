@@ -1,5 +1,5 @@
 """A picture of a device scene's solution (`python -m harness.device_plot results/strip_actuator/n16`):
-for a 2D body, phi, theta and the displacement on the deformed mesh (displacement and
+for a 2D body, phi, theta (when the scene has it) and the displacement on the deformed mesh (displacement and
 thickness exaggerated: a device is thin); for a 3D body, phi and theta on its bottom face
 (where a device meets its pad) and on the section y = 0 (harness/slices.py), from solution.vtu."""
 
@@ -21,6 +21,11 @@ from harness.slices import plane  # noqa: E402
 PANELS = (("phi", "V"), ("theta", "K"))
 
 
+def panels(f: Fields) -> tuple[tuple[str, str], ...]:
+    """The scalar fields of PANELS the solution has (a scene without heat has no theta)."""
+    return tuple(p for p in PANELS if p[0] in f.values)
+
+
 def contour(ax: plt.Axes, tri: Triangulation, values: np.ndarray, label: str) -> None:
     low, high = float(values.min()), float(values.max())
     levels = np.linspace(low, high if high > low else low + 1.0, 25)
@@ -37,8 +42,9 @@ def render_2d(f: Fields, fig: plt.Figure) -> None:
     stretch = 0.2 * length / max(thickness, 1e-300)
     moved = pts + scale * u
     tri = Triangulation(1e3 * moved[:, 0], 1e3 * stretch * moved[:, 1], f.triangles)
-    axes = fig.subplots(3, 1)
-    for ax, (name, unit) in zip(axes, (*PANELS, ("|u|", "m"))):
+    shown = (*panels(f), ("|u|", "m"))
+    axes = fig.subplots(len(shown), 1, squeeze=False)[:, 0]
+    for ax, (name, unit) in zip(axes, shown):
         values = np.linalg.norm(u, axis=1) if name == "|u|" else f.field(name)
         contour(ax, tri, values, f"{name} [{unit}]")
         ax.set(title=f"{name}; displacement x {scale:.2g}, thickness x {stretch:.2g}", xlabel="x [mm]",
@@ -51,8 +57,8 @@ def render_3d(f: Fields, fig: plt.Figure) -> None:
     bottom = np.flatnonzero(np.abs(pts[:, 2] - pts[:, 2].min()) < 1e-6 * np.ptp(pts[:, 2]))
     face = Triangulation(1e3 * pts[bottom, 0], 1e3 * pts[bottom, 1])
     cut = plane(f, 1, 0.0)
-    axes = fig.subplots(2, 2)
-    for row, (name, unit) in enumerate(PANELS):
+    axes = fig.subplots(len(panels(f)), 2, squeeze=False)
+    for row, (name, unit) in enumerate(panels(f)):
         values = f.field(name)
         contour(axes[row, 0], face, values[bottom], f"{name} [{unit}]")
         axes[row, 0].set(title=f"{name} on the bottom face", xlabel="x [mm]", ylabel="y [mm]", aspect="equal")

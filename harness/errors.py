@@ -31,6 +31,10 @@ class EnvironmentFault(HarnessError):
     """The machine, not the input: permissions, a full disk, a missing tool, too little memory."""
 
 
+class StudyBusy(HarnessError):
+    """Another live study is writing the same results directory."""
+
+
 class VerdictError(HarnessError):
     """Everything ran, but a verdict failed: a physical check, a slope outside the band."""
 

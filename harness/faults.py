@@ -10,6 +10,7 @@ The table (also in the README):
     4   ENVIRONMENT  permissions, full disk, read-only or wrong-kind path, missing tool, memory
     5   NO_PEER      crosscheck: GetFEM (python3-getfem) is not installed
     6   DISAGREE     crosscheck: FreeFEM and GetFEM differ by more than 1e-8 relative
+    7   BUSY         another study is writing the same results directory
     130 INTERRUPTED  SIGINT, SIGTERM or SIGHUP
 """
 
@@ -27,7 +28,7 @@ from typing import Callable, Iterator
 from harness import signals
 from harness.contract import ExitCode
 from harness.errors import (Disagreement, EnvironmentFault, FieldsError, HarnessError, MeshError, PeerMissing,
-                            RunError, SceneError, VerdictError)
+                            RunError, SceneError, StudyBusy, VerdictError)
 
 # errno -> what a user should hear about the path involved.
 MEANING = {
@@ -71,6 +72,18 @@ def space_for(what: str, directory: Path) -> Iterator[None]:
         raise EnvironmentFault(f"{MEANING[exc.errno]} for {what} in {directory}") from None
 
 
+@contextlib.contextmanager
+def naming(path: Path) -> Iterator[None]:
+    """An OSError from inside that names no file (a failed write() or close(): a disk that
+    fills while a report is written) is given `path`, so its one line says where."""
+    try:
+        yield
+    except OSError as exc:
+        if exc.filename is None:
+            exc.filename = os.fspath(path)
+        raise
+
+
 def exit_code(exc: BaseException) -> ExitCode:
     """The exit code of an exception that ended a command."""
     if isinstance(exc, KeyboardInterrupt):
@@ -79,6 +92,8 @@ def exit_code(exc: BaseException) -> ExitCode:
         return ExitCode.NO_PEER
     if isinstance(exc, Disagreement):
         return ExitCode.DISAGREE
+    if isinstance(exc, StudyBusy):
+        return ExitCode.BUSY
     if isinstance(exc, VerdictError):
         return ExitCode.VERDICT
     if isinstance(exc, (EnvironmentFault, OSError, MemoryError)):

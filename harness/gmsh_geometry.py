@@ -4,7 +4,7 @@ harness/contract.py ROLE_LABELS by the case file's [geometry.roles] table.
 
 The file is read once when the scene loads, so every mistake in it (a missing file, a gmsh
 syntax error, a name without a role, a role naming no group, a body gmsh meshes in the other
-dimension, nothing clamped) ends the command before anything runs. The contact part is kept
+dimension) ends the command before anything runs. The contact part is kept
 as the facets of a mesh of its own curves or surfaces: straight or flat pieces, so any
 level's Gamma_3 nodes are found by lying on them (checks.py), whatever the body's shape.
 """
@@ -25,8 +25,6 @@ from harness.errors import SceneError
 from harness.gmsh_api import session
 
 LEVEL_KINDS = ("split", "remesh")
-# Rollers along every axis hold the body like a clamp (docs/geometry.md says when they do).
-ROLLERS = ("roller_x", "roller_y", "roller_z")
 
 
 # Triangle area [m^2] below which a 2D level is read by freefem/dimension.idp's own reader:
@@ -49,6 +47,17 @@ class GmshGeometry:
     @property
     def role_of_name(self) -> dict[str, str]:
         return dict(self.roles)
+
+    def used_roles(self) -> frozenset[str]:
+        return frozenset(role for _, role in self.roles)
+
+    def contact_normals(self) -> np.ndarray:
+        """A normal of each contact facet (rows; unnormalised)."""
+        normals = []
+        for facet in self.contact:
+            edges = np.array(facet[1:]) - np.array(facet[0])
+            normals.append((-edges[0][1], edges[0][0]) if self.dimension == 2 else np.cross(edges[0], edges[1]))
+        return np.array(normals, dtype=float).reshape(-1, self.dimension)
 
     def nodes_at(self, n: int) -> int:
         """Nodes of level n for the memory and disk guards (harness/guards.py): exact for a
@@ -142,13 +151,6 @@ def parse_gmsh(table: dict[str, Any], case_dir: Path, levels: list[int], effects
         if role not in ROLE_LABELS:
             raise SceneError(f"geometry.roles.{name} = {role!r}: role must be one of {', '.join(ROLE_LABELS)}")
     used = set(roles.values())
-    # What holds the body: a clamp, rollers along every axis, or the penalised foundation with
-    # friction (its normal and tangential penalties, once pressed: tests/data/block.toml).
-    held = "clamped" in used or set(ROLLERS[:dimension]) <= used or (
-        "contact" in used and {"contact", "friction"} <= set(effects))
-    if not held:
-        raise SceneError("geometry.roles: no part is clamped (nor rollers along every axis, nor a contact part "
-                         "with friction): the body could move as a rigid body")
     if "contact" in effects and "contact" not in used:
         raise SceneError("geometry.roles: the contact part is empty (no name maps to role contact) but effect "
                          "'contact' is on")

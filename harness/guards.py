@@ -3,6 +3,7 @@ disk, and a solution must stay in the small-strain range the model assumes."""
 
 from __future__ import annotations
 
+import enum
 import math
 import os
 from pathlib import Path
@@ -48,6 +49,31 @@ MSH_BYTES_PER_NODE = {2: 150, 3: 320}
 # Largest displacement gradient (strain or rotation) the small-strain model is trusted at.
 SMALL_STRAIN = 0.01
 OVERRIDE_FLAG = "--ignore-memory-guard"
+
+
+class Slope(enum.IntEnum):
+    """How many distinct levels a study needs for its slopes. A slope is a least-squares line
+    through at least two errors (harness/rates.py); a study whose errors are measured against
+    its own finest level (convergence, scenes, verify's GCI) needs that reference level
+    besides; one whose errors are against an exact solution (verify's manufactured cases) does
+    not. The value is the count of levels. A study whose verdict is not a slope (branches:
+    the physical checks) tables its slopes only when it has the levels for them."""
+
+    NONE = 0
+    AGAINST_EXACT = 2
+    AGAINST_FINEST = 3
+
+
+def check_slope_levels(levels: tuple[int, ...], slope: Slope, where: str = "") -> None:
+    """Refuse, before anything runs, a level set too small for the study's slopes."""
+    distinct = sorted(set(levels))
+    if len(distinct) >= slope:
+        return
+    why = ("the finest is the reference, each slope needs two errors against it" if slope == Slope.AGAINST_FINEST
+           else "each slope needs two errors")
+    given = ",".join(map(str, distinct)) or "none"
+    raise SceneError(f"{where + ': ' if where else ''}levels {given} cannot give a slope: the study needs "
+                     f"{int(slope)} distinct levels ({why}), e.g. 2,4,8")
 
 
 def check_nested(levels: tuple[int, ...]) -> None:

@@ -5,10 +5,12 @@ Every study (harness/studies/) is this call with its own three functions:
     run_pipeline(plan, runs=..., report=..., verdict=...)
 
 - guards, before anything is meshed or run: the results folder can hold results, every
-  scene's warnings are printed, its levels are nested (when the study compares levels),
+  scene's warnings are printed, its levels are nested (when the study compares levels) and
+  enough for its slopes (guards.Slope),
   its finest levels fit in memory (unless overridden), and its meshes fit on the disk;
 - the transaction (harness/atomic.py): the directories the study writes hold its earlier
-  complete output or its new one, never a mix, whatever fails or interrupts it;
+  complete output or its new one, never a mix, whatever fails or interrupts it, and one
+  study at a time (a second is refused, exit 7 BUSY);
 - runs and report inside the transaction, the report written only when the runs finished;
 - the verdict after it: a failure message makes the command exit 1 (VERDICT) with that
   one `error:` line, after the report is safely written.
@@ -23,8 +25,10 @@ from typing import Callable, Sequence, TypeVar
 
 from harness.atomic import StudyTransaction
 from harness.errors import VerdictError
-from harness.faults import check_results_root
-from harness.guards import check_memory, check_nested, geometry_depth, mesh_file_bytes, need_disk
+from harness.faults import check_results_root, naming
+from harness.guards import (Slope, check_memory, check_nested, check_slope_levels, geometry_depth, mesh_file_bytes,
+                            need_disk)
+from harness.launcher import check_level_ranks
 from harness.scene import Scene, load_scene
 
 R = TypeVar("R")
@@ -32,10 +36,12 @@ R = TypeVar("R")
 
 @dataclass(frozen=True)
 class Guarded:
-    """A scene a study will run, and its levels (the scene's own when empty)."""
+    """A scene a study will run, its levels (the scene's own when empty) and how many of them
+    its slopes need."""
 
     scene: Scene
     levels: tuple[int, ...] = ()
+    slope: Slope = Slope.NONE
 
     @property
     def chosen(self) -> tuple[int, ...]:
@@ -46,13 +52,16 @@ class Guarded:
 class Plan:
     """What a study guards and owns. `results`: the root it writes under; `scene_dirs`: the
     scene directories it writes a convergence report into; `outputs`: the directories whose
-    every file is its (tables, Markdown, plots); `nested`: whether it compares levels (a
-    convergence study), so they must be nested; `ignore_memory`: the memory guard's override."""
+    every file is its (tables, Markdown, plots); `locked`: directories its runs write into
+    that it does not own (`solve`'s scene: locked, not restored); `nested`: whether it
+    compares levels (a convergence study), so they must be nested; `ignore_memory`: the
+    memory guard's override."""
 
     results: Path
     guarded: tuple[Guarded, ...] = ()
     scene_dirs: tuple[Path, ...] = ()
     outputs: tuple[Path, ...] = ()
+    locked: tuple[Path, ...] = ()
     nested: bool = False
     ignore_memory: bool = False
 
@@ -75,6 +84,12 @@ def check_guards(plan: Plan) -> None:
             print(f"warning: {warning}", file=sys.stderr)
         if plan.nested:
             check_nested(levels)
+        given = item.levels and tuple(item.levels) != tuple(scene.levels)
+        check_slope_levels(levels, item.slope, "--levels" if given else f"{scene.source} [study] levels")
+        for n in levels:
+            fewer = check_level_ranks(scene, n)
+            if fewer:
+                print(f"warning: {fewer}", file=sys.stderr)
         if not plan.ignore_memory:
             check_memory(scene.geometry.width, scene.geometry.height, levels, scene.effects, scene.element,
                          depth=geometry_depth(scene.geometry), factorises=scene.factorises,
@@ -90,11 +105,18 @@ def check_guards(plan: Plan) -> None:
 def run_pipeline(plan: Plan, runs: Callable[[], R], report: Callable[[R], object],
                  verdict: Callable[[R], str | None] = lambda _: None) -> R:
     """Guards, then the runs and the report inside one transaction, then the verdict: a
-    message from `verdict` is raised as a VerdictError (exit 1), the report already written."""
+    message from `verdict` is raised as a VerdictError (exit 1), the report already written
+    (a verdict with another exit code raises its own error: crosscheck's 6 and 3)."""
     check_guards(plan)
-    with StudyTransaction(*plan.scene_dirs, outputs=plan.outputs):
+    transaction = StudyTransaction(*plan.scene_dirs, outputs=plan.outputs, locked=plan.locked)
+    with transaction:
         result = runs()
-        report(result)
+        # A write that names no file of its own is said to be in the study's first directory.
+        with naming(next(iter((*plan.outputs, *plan.scene_dirs)), plan.results)):
+            report(result)
+    for path in transaction.swept_after:
+        print(f"warning: {path}: the temp dir of a run whose process died during the study (a killed Dask "
+              f"worker?), removed; its level was run again and the study is complete", file=sys.stderr)
     failure = verdict(result)
     if failure:
         raise VerdictError(failure)

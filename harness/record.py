@@ -27,6 +27,8 @@ CHECK_KEYS = frozenset({
     "heat_out_dirichlet", "heat_imbalance", "max_heat_flux_contact", "max_heat_flux_open",
     "max_heat_flux_open_expected", "charge_source", "charge_out_dirichlet", "charge_imbalance", "electrode_charge",
     "max_charge_flux_contact", "max_charge_flux_open", "max_charge_flux_open_expected",
+    # the size of the terms each reading sums (the checks' floors, harness/checks.py)
+    "force_reading", "traction_reading", "heat_reading", "heat_flux_reading", "charge_reading", "charge_flux_reading",
 })
 
 
@@ -78,6 +80,8 @@ class RunRecord:
     contact_force: float | None = None
     friction_force: float | None = None  # the magnitude of friction_force_vector
     friction_force_vector: list[float] | None = None  # its x, y(, z) components
+    friction_total: float | None = None  # |sigma_tau| integrated over Gamma_3
+    friction_open: float | None = None  # the same over its open part
     active_measure: float | None = None  # the closed part of Gamma_3: a length in 2D, an area in 3D
     heat_in_contact: float | None = None
     charge_in_contact: float | None = None
@@ -107,6 +111,7 @@ class RunRecord:
     waited_s: float | None = None
     peak_rss_source: str | None = None
     started_from: str | None = None
+    warnings: list[str] | None = None  # what the harness warns of this run (harness/tresca.py)
     # -- a run on MPI ranks (run.ranks > 1; harness/launcher.py merge_records): the ranks,
     # freefem/parallel_output.idp's figures, and the sequential pass's own peak and residuals
     ranks: int | None = None
@@ -149,7 +154,7 @@ RENAMED_KEYS = {"active_length": "active_measure"}
 KEYS = frozenset(f.name for f in dataclasses.fields(RunRecord))
 # What output.idp writes on every converged run (the rest depends on the scene).
 ALWAYS_WRITTEN = ("n", "converged", "reason", "newton_iterations", "dofs", "fields")
-HARNESS_KEYS = ("wall_s", "pipelined", "waited_s", "peak_rss_source", "started_from",
+HARNESS_KEYS = ("wall_s", "pipelined", "waited_s", "peak_rss_source", "started_from", "warnings",
                 "ranks", "parallel", "post_pass_peak_rss_mb", "post_pass_residuals")
 
 

@@ -12,16 +12,17 @@ from pathlib import Path
 from typing import Any
 
 from harness import freefem, launcher, petsc_plugin
-from harness.atomic import write_atomic
+from harness.atomic import OLD_PREFIX, RUN_TEMP_PREFIX, write_atomic
 from harness.contract import Failure
 from harness.cache import cached_record, run_inputs, sha256_file, write_checksums
-from harness.errors import EnvironmentFault, RunError, SceneError
+from harness.errors import EnvironmentFault, HarnessError, RunError, SceneError
 from harness.gmsh_geometry import GmshGeometry
 from harness.faults import disk_full, space_for
 from harness.signals import CHILDREN, Interrupted
 from harness.layout import Layout
 from harness.mesh import coarser_meshes, family_levels
 from harness.record import RunRecord, read_run_json, write_run_json
+from harness.tresca import grip_warning
 from harness.scene import Scene
 from harness.script import main_script
 
@@ -67,13 +68,16 @@ class RunResult:
 
 
 def check_solver_files(scene: Scene, layout: Layout) -> None:
-    """Fail before meshing or running when the case names a material the repo lacks."""
+    """Fail before meshing or running when the solver scripts (--freefem) are not there, or
+    the case names a material they lack."""
+    if not layout.freefem.is_dir():
+        raise HarnessError(f"--freefem {layout.freefem}: the FreeFEM scripts directory does not exist")
+    if not layout.scheme_file().is_file():
+        raise HarnessError(f"--freefem {layout.freefem}: not a FreeFEM scripts directory (no {layout.scheme_file().name})")
     wanted = layout.material_file(scene.material)
     if not wanted.is_file():
         available = ", ".join(sorted(p.stem for p in wanted.parent.glob("*.idp"))) or "none"
         raise SceneError(f"unknown material {scene.material!r}: no {wanted} (available: {available})")
-    if not layout.scheme_file().is_file():
-        raise RunError(f"no solver script {layout.scheme_file()}")
 
 
 def run_level(
@@ -96,6 +100,7 @@ class LevelRun:
     def __init__(self, scene: Scene, mesh: Path, n: int, layout: Layout, force: bool = False) -> None:
         check_solver_files(scene, layout)
         launcher.check_parallel(scene)
+        scene = launcher.level_scene(scene, n)  # on as many of run.ranks as the level can take
         self.scene, self.mesh, self.n, self.layout, self.force = scene, mesh, n, layout, force
         self.work: Path | None = None
         self.launched: freefem.Launched | None = None
@@ -194,7 +199,7 @@ class LevelRun:
 
     def _new_work_dir(self) -> Path:
         final = self.layout.level_dir(self.scene.name, self.n)
-        work = final.with_name(f".tmp-n{self.n}-{uuid.uuid4().hex[:8]}")
+        work = final.with_name(f"{RUN_TEMP_PREFIX}n{self.n}-{uuid.uuid4().hex[:8]}")
         work.mkdir(parents=True)
         CHILDREN.add_dir(work)  # removed on a signal, whichever thread owns it
         return work
@@ -348,6 +353,9 @@ def collect(
                           peak_rss_mb=record.peak_rss_mb if own else outcome.peak_rss_mb,
                           initial_guess=scene.initial_guess,
                           started_from=guess if not start else f"file {start.state}")
+    grip = grip_warning(scene, record)
+    if grip:
+        record = record.with_(warnings=[grip])
     write_run_json(record, work)
     return record
 
@@ -385,7 +393,7 @@ def keep_failed(work: Path, failed: Path) -> None:
 
 
 def swap_in(work: Path, final: Path) -> None:
-    old = final.with_name(f".old-{final.name}-{uuid.uuid4().hex[:8]}")
+    old = final.with_name(f"{OLD_PREFIX}{final.name}-{uuid.uuid4().hex[:8]}")
     if final.exists():
         os.replace(final, old)
     os.replace(work, final)

@@ -27,6 +27,16 @@ SHOWN = {
     "charge_ok": ("charge_imbalance",),
 }
 
+# Check flag -> what to try when it fails (printed after its values).
+ADVICE = {
+    "force_ok": "tighten newton.rtol: the imbalance is Newton's final residual",
+    "sigma_nu_ok": "tighten newton.rtol: a tensile sigma_nu is Newton's residual at a contact node",
+    "sigma_tau_ok": "tighten newton.rtol: |sigma_tau| beyond the slip bound is Newton's residual at a contact node",
+    "open_flux_ok": "tighten newton.rtol: a flux through an open node is Newton's residual there",
+    "heat_ok": "tighten newton.rtol: the balance is exact for a converged residual",
+    "charge_ok": "tighten newton.rtol: the balance is exact for a converged residual",
+}
+
 # Check flag -> the run.json `checks` entries it cannot be judged without.
 NEEDS = {
     "force_ok": ("force_imbalance",),
@@ -83,7 +93,7 @@ def check_run(scene: Scene, run: RunResult, fields: Fields | None = None) -> Che
     """Evaluate the checks of one converged run (harness/checks.py); `fields`: its solution,
     when already parsed (else read here)."""
     fields = fields or solution_fields(run)
-    warnings = []
+    warnings = list(run.record.warnings or ())  # the run's own (harness/tresca.py)
     if fields is not None and "u" in fields.values:
         gradient = max_displacement_gradient(fields.points, fields.cells, fields.field("u"))
         warning = small_strain_warning(gradient, f"{scene.name} n={run.n}")
@@ -98,7 +108,7 @@ def check_run(scene: Scene, run: RunResult, fields: Fields | None = None) -> Che
         return Checked(run.n, f"checks n={run.n}: pass ({', '.join(done)}){note}", True, tuple(warnings))
     values = judged.values
     detail = "; ".join(f"{flag[:-3]} " + ", ".join(f"{k} {fmt(values.get(k))}" for k in SHOWN[flag])
-                       for flag in judged.failed)
+                       + f" (try: {ADVICE[flag]})" for flag in judged.failed)
     return Checked(run.n, f"checks n={run.n}: FAIL {detail}", False, tuple(warnings))
 
 

@@ -3,6 +3,7 @@
 from __future__ import annotations
 
 import copy
+import dataclasses
 import hashlib
 import math
 import tomllib
@@ -14,10 +15,12 @@ from harness.errors import SceneError
 from harness.petsc_plugin import default_options, factorising, multigrid
 from harness.box import Box, parse_box
 from harness.gmsh_geometry import GmshGeometry, check_poling, parse_gmsh
-from harness.schema import EFFECTS, REQUIRED, SCHEMA, SOLVER_SECTIONS, Key, effect_of, geometry_keys
+from harness.schema import (EFFECTS, REQUIRED, SCHEMA, SOLVER_SECTIONS, Key, effect_of, geometry_keys,
+                            unbounded_keys, unread_by_law)
 from harness.sections import sections_of
 from harness.segments import Geometry, parse_geometry
 from harness.unknowns import Unknowns
+from harness.well_posed import check_fixed
 
 
 @dataclass(frozen=True)
@@ -144,6 +147,15 @@ class Scene:
             **({"reference_sha256": sha256_file(self.reference_state)} if self.reference_state else {}),
         }
 
+    def on_ranks(self, count: int) -> Scene:
+        """The same scene solved on `count` MPI ranks (run.ranks): a level of a chain too
+        small for the scene's ranks runs on fewer (harness/launcher.py level_scene)."""
+        if count == self.sections.run.ranks:
+            return self
+        table = {**self.table, "run": {**self.table["run"], "ranks": count}}
+        sections = dataclasses.replace(self.sections, run=dataclasses.replace(self.sections.run, ranks=count))
+        return dataclasses.replace(self, table=table, sections=sections)
+
     @property
     def reference_state(self) -> str:
         return self.sections.reference.state
@@ -169,6 +181,7 @@ def load_scene(path: Path, overrides: Iterable[str] = ()) -> Scene:
         table, warnings = resolve(raw)
         geometry = parse_any_geometry(table, path.parent)
         check_poling(table["scene"]["poling_axis"], getattr(geometry, "dimension", 2))
+        check_fixed(geometry, table["scene"]["effects"], table)
         check_expect(table["expect"])
     except SceneError as exc:
         raise SceneError(f"{path}: {exc}") from None  # every case-file error names the file
@@ -233,6 +246,8 @@ def resolve(raw: dict) -> tuple[dict[str, dict[str, Any]], tuple[str, ...]]:
                 if key in given:
                     warnings.append(f"{section}.{key} is ignored: effect {effect!r} is off")
                 continue
+            if spec.required and key not in given and unread_by_law(section, key, given, keys):
+                continue  # the law in force never reads it (schema.LAW_DATA)
             table[section][key] = checked(f"{section}.{key}", spec, given.get(key, spec.default))
     return table, tuple(warnings)
 
@@ -251,6 +266,8 @@ def checked(name: str, spec: Key, value: Any) -> Any:
     value = coerced(name, spec.kind, value)
     if isinstance(value, float) and math.isnan(value):
         raise SceneError(f"{name} = nan is not a number")
+    if isinstance(value, float) and math.isinf(value) and not spec.unbounded:
+        raise SceneError(f"{name} = {value} must be a finite number (only {', '.join(unbounded_keys())} may be inf)")
     complaint = spec.check(value) if spec.check else None
     if complaint:
         raise SceneError(f"{name} = {value!r} {complaint}")

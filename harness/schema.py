@@ -30,6 +30,9 @@ class Key:
     kind: type
     default: Any = REQUIRED
     check: Check | None = None
+    # What an infinite value means, for the few keys where it is data ("none"); blank: a
+    # number must be finite (inf is refused like nan, never passed on as a huge number).
+    unbounded: str = ""
 
     @property
     def required(self) -> bool:
@@ -110,6 +113,22 @@ DATA_EFFECT: dict[tuple[str, str | None], str] = {
 }
 
 
+# Case-file data that only one friction law reads (freefem/contact.idp): key -> (the key
+# naming the law, the law that reads it). Under another law the key may be left out.
+LAW_DATA: dict[tuple[str, str], tuple[str, str]] = {
+    ("contact", "S"): ("friction_law", "tresca"),
+}
+
+
+def unread_by_law(section: str, key: str, given: dict[str, Any], keys: dict[str, "Key"]) -> bool:
+    """Whether the law a section names (or its default) never reads this key."""
+    law = LAW_DATA.get((section, key))
+    if law is None:
+        return False
+    law_key, reader = law
+    return given.get(law_key, keys[law_key].default) != reader
+
+
 def effect_of(section: str, key: str) -> str | None:
     """The effect a case-file value belongs to (None: always used)."""
     return DATA_EFFECT.get((section, key)) or DATA_EFFECT.get((section, None))
@@ -171,6 +190,9 @@ SCHEMA: dict[str, dict[str, Key]] = {
     "contact": {
         "c_nu": Key(float, check=positive),
         "gap": Key(float),
+        # Tresca's slip bound [N/m^2]: a friction stress the contact holds whatever its
+        # pressure, so it grips the body even where the contact is open (docs/model.md).
+        # Required by Tresca only (LAW_DATA).
         "S": Key(float, check=nonnegative),
         # The slip bound (freefem/contact.idp, docs/laws.md): tresca, R = S; coulomb,
         # R = mu c_nu (u_nu - g)_+, mu times the normal pressure (S is then not used).
@@ -181,7 +203,7 @@ SCHEMA: dict[str, dict[str, Key]] = {
         "k_e": Key(float, check=nonnegative),
         "eps_e": Key(float, check=positive),
         "phi_f": Key(float),
-        "L": Key(float, check=positive),
+        "L": Key(float, check=positive, unbounded="no truncation: phi_L is the identity"),
     },
     "thermal_contact": {
         "k_c": Key(float, check=nonnegative),
@@ -279,6 +301,11 @@ GMSH_GEOMETRY: dict[str, Key] = {
     # from; 0: the smallest of study.levels.
     "coarsest": Key(int, 0, nonnegative),
 }
+
+
+def unbounded_keys() -> list[str]:
+    """The keys an infinite value is documented for ("section.key")."""
+    return [f"{section}.{key}" for section, keys in SCHEMA.items() for key, spec in keys.items() if spec.unbounded]
 
 
 def geometry_keys(given: dict[str, Any]) -> dict[str, Key]:

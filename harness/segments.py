@@ -52,6 +52,15 @@ class Geometry:
                     & (points[:, 0] <= seg.x1 + 1e-12)
         return on
 
+    def used_roles(self) -> frozenset[str]:
+        return frozenset(self.role_lengths())
+
+    def contact_normals(self) -> np.ndarray:
+        """The normal axis of each side holding contact (rows)."""
+        normals = [[0.0, 1.0] for side in (self.bottom, self.top) if any(s.role == "contact" for s in side)]
+        normals += [[1.0, 0.0] for role in (self.left, self.right) if role == "contact"]
+        return np.array(normals, dtype=float).reshape(-1, 2)
+
     def role_lengths(self) -> dict[str, float]:
         lengths = dict.fromkeys(ROLE_LABELS, 0.0)
         for seg in self.bottom + self.top:

@@ -68,6 +68,10 @@ class Children:
         with self.lock:
             self.dirs.discard(path)
 
+    def live_dirs(self) -> set[Path]:
+        with self.lock:
+            return set(self.dirs)
+
     def kill_all(self) -> None:
         """SIGKILL every registered process group and process (they are reaped by whoever waits on them)."""
         with self.lock:

@@ -10,7 +10,6 @@ from typing import Mapping
 import pandas as pd
 
 from harness.engine import BackgroundMeshes, Progress, run_levels, runs_of, stderr_line
-from harness.errors import RunError
 from harness.fields import Fields, read_fields
 from harness.freefem import freefem_version
 from harness.layout import Layout
@@ -59,8 +58,6 @@ def run_study(
     independent levels), then the errors against the finest and the
     slopes; a RunError naming the first failed level if any failed."""
     levels = tuple(sorted(set(levels)))
-    if len(levels) < 2:
-        raise RunError("a convergence study needs at least two levels (the finest is the reference)")
     check_solver_files(scene, layout)
     freefem_version()  # asked once here, not by every worker thread at once
     start = time.perf_counter()

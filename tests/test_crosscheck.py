@@ -139,3 +139,13 @@ def test_repeat_times_both_codes_as_whole_processes_with_medians_and_ratios(tmp_
             assert 0 < timing[f"{column}_min"] <= timing[column] <= timing[f"{column}_max"]
         assert timing[f"ratio_{key}"] == pytest.approx(timing[f"{key}_freefem"] / timing[f"{key}_getfem"], rel=1e-5)
     assert "| paper | zero | 2 |" in (tmp_path / "out" / "timing.md").read_text()
+
+
+@pytest.mark.parametrize("case", ["cantilever.toml", "coulomb.toml"])
+def test_a_coulomb_scene_is_refused_in_one_line_not_compared_with_tresca(case, tmp_path, capsys):
+    """The peer's friction is Tresca's: a Coulomb scene was solved there as Tresca (coulomb
+    'agreed' only where every node sticks) or failed on its missing S."""
+    code = cli.main(["crosscheck", str(CASES / case), "--levels", "2", "--results", str(tmp_path)])
+    err = capsys.readouterr().err.strip().splitlines()
+    assert code == ExitCode.INPUT and len(err) == 1, err
+    assert case in err[0] and "Tresca friction only" in err[0] and "'coulomb'" in err[0]

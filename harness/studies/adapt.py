@@ -69,7 +69,8 @@ def run(args: argparse.Namespace) -> int:
     layout = Layout(results=args.results / "adapt", freefem=args.freefem)
     out = layout.case_dir(scene.name)
     plan = Plan(layout.results, (Guarded(scene, (scene.levels[0],)), Guarded(uniform_scene)),
-                scene_dirs=(out,), ignore_memory=args.ignore_memory)
+                scene_dirs=(out,), ignore_memory=args.ignore_memory,
+                locked=(layout.case_dir(reference_scene.name), layout.case_dir(uniform_scene.name)))
     print(f"adapt {scene.name}: up to {args.steps} steps, bulk {args.bulk}, into {out}", file=sys.stderr)
 
     def runs() -> tuple[Adaptation, dict]:

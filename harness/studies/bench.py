@@ -280,7 +280,8 @@ def run(args: argparse.Namespace) -> int:
 
     scene = load_scene(args.case, args.overrides)
     levels = tuple(args.levels or scene.levels)
-    plan = Plan(args.results, (Guarded(scene, levels),), outputs=(args.results,), ignore_memory=args.ignore_memory)
+    plan = Plan(args.results, (Guarded(scene, levels),), outputs=(args.results,),
+                locked=(Layout(results=args.results / "runs").case_dir(scene.name),), ignore_memory=args.ignore_memory)
     run_pipeline(plan, lambda: measure(args, levels, say), lambda done: report(args, levels, *done))
     return 0
 

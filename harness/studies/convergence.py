@@ -6,6 +6,7 @@ from __future__ import annotations
 import argparse
 
 from harness.arguments import add_case, add_common, add_effects, add_jobs, add_levels, layout_of
+from harness.guards import Slope
 from harness.layout import Layout
 from harness.pipeline import Guarded, Plan, run_pipeline, scene_of
 from harness.report import format_table, write_report
@@ -30,7 +31,7 @@ def run(args: argparse.Namespace) -> int:
 
 def convergence(scene: Scene, levels: tuple[int, ...], layout: Layout, jobs: int, force: bool,
                 ignore_memory: bool = False) -> Study:
-    plan = Plan(layout.results, (Guarded(scene, levels),), scene_dirs=(layout.case_dir(scene.name),), nested=True,
+    plan = Plan(layout.results, (Guarded(scene, levels, Slope.AGAINST_FINEST),), scene_dirs=(layout.case_dir(scene.name),), nested=True,
                 ignore_memory=ignore_memory)
 
     def report(study: Study) -> None:

@@ -9,17 +9,18 @@ Exit 6 (DISAGREE) when a field differs by more than 1e-8 relative, naming field 
 from __future__ import annotations
 
 import argparse
+from dataclasses import dataclass
 from pathlib import Path
 
 import pandas as pd
 
-from harness.arguments import add_common, level_list, name_list, positive_int
+from harness.arguments import add_common, name_list, positive_int, study_levels
 from harness.crosscheck import TOLERANCE, differences, integral_differences
 from harness.engine import InlineMeshes, quiet, run_levels, runs_of
 from harness.errors import Disagreement, FieldsError, RunError, SceneError
-from harness.faults import check_results_root
 from harness.fields import Fields, read_fields
 from harness.layout import Layout
+from harness.pipeline import Guarded, Plan, run_pipeline
 from harness.norm_table import MEASURE
 from harness.peer import material_values, pressed_depth, problem, require_getfem, run_peer
 from harness.record import RunRecord
@@ -32,7 +33,7 @@ NORM_OF = {term.field: term.norm for term in MEASURE}  # V, W, Q: the columns re
 
 def add_arguments(parser: argparse.ArgumentParser) -> None:
     parser.add_argument("cases", type=Path, nargs="+", help="case files, e.g. cases/paper.toml")
-    parser.add_argument("--levels", type=level_list, help="levels n = 1/h (default: the case's up to 8 in 2D, 4 in 3D)")
+    parser.add_argument("--levels", type=study_levels, help="levels n = 1/h (default: the case's up to 8 in 2D, 4 in 3D)")
     parser.add_argument("--branches", type=name_list, help="starts to compare: zero, pressed (default: the case's own)")
     parser.add_argument("--set", dest="overrides", action="append", default=[], metavar="KEY=VALUE",
                         help="override a case value, e.g. --set contact.S=4 (repeatable)")
@@ -45,37 +46,60 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
     add_common(parser)
 
 
+@dataclass(frozen=True)
+class Compared:
+    """What the runs of a cross-check gave: the table's rows, each failed scene's line, the timings."""
+
+    rows: list[dict]
+    failures: list[str]
+    timed: list[dict]
+
+
 def run(args: argparse.Namespace) -> int:
-    check_results_root(args.results)
     # Both codes' runs in RESULTS/crosscheck/runs/<scene>/ (not committed): FreeFEM's every
     # level from the branch's start, not the warm-started runs of a study.
     layout = Layout(results=args.results / "crosscheck" / "runs", freefem=args.freefem)
     plans = [plan for case in args.cases for plan in plans_of(case, args.overrides, args.branches, args.levels)]
     require_getfem()
-    rows, failures, timed = [], [], []
-    for scene, start, levels in plans:
-        try:
-            rows += compare(scene, start, levels, layout, args.force, args.figures)
-            if args.repeat > 1:
-                timed.append(timing(scene, start, max(levels), layout, args.repeat))
-        except (RunError, FieldsError) as exc:  # recorded; the other scenes still run
-            failures.append(f"{scene.name} ({start}): {exc}")
-            rows.append({"scene": scene.name, "case": scene.source.stem, "branch": start,
-                         "dimension": scene.dimension, "status": f"failed: {exc}"})
-            print(f"{scene.name} ({start}): failed: {exc}", flush=True)
-    table = pd.DataFrame(rows)
     out = args.out or args.results / "crosscheck"
-    write(table, out)
-    if timed:
-        write_timing(pd.DataFrame(timed), out)
-    print(summary_markdown(table))
-    print(f"wrote {out}/crosscheck.csv, crosscheck.md, crosscheck.png")
-    worst = worst_row(table)
-    if worst is not None:
-        raise Disagreement(f"{worst['scene']} ({worst['branch']}) n={int(worst['n'])}: {worst['field']} differs by "
-                           f"{worst['value']:.3g} relative (tolerance {TOLERANCE:g})")
-    if failures:
-        raise RunError(failures[0] + (f" (+{len(failures) - 1} more)" if len(failures) > 1 else ""))
+    # The one study pipeline (harness/pipeline.py): its runs, table and figures all new or
+    # all the earlier ones, and no other study writing them meanwhile.
+    plan = Plan(args.results, tuple(Guarded(scene, levels) for scene, _, levels in plans),
+                scene_dirs=tuple(dict.fromkeys(layout.case_dir(scene.name) for scene, _, _ in plans)),
+                outputs=(out, *([args.figures] if args.figures else [])), ignore_memory=args.ignore_memory)
+
+    def runs() -> Compared:
+        done = Compared([], [], [])
+        for scene, start, levels in plans:
+            try:
+                done.rows.extend(compare(scene, start, levels, layout, args.force, args.figures))
+                if args.repeat > 1:
+                    done.timed.append(timing(scene, start, max(levels), layout, args.repeat))
+            except (RunError, FieldsError) as exc:  # recorded; the other scenes still run
+                done.failures.append(f"{scene.name} ({start}): {exc}")
+                done.rows.append({"scene": scene.name, "case": scene.source.stem, "branch": start,
+                                  "dimension": scene.dimension, "status": f"failed: {exc}"})
+                print(f"{scene.name} ({start}): failed: {exc}", flush=True)
+        return done
+
+    def report(done: Compared) -> None:
+        table = pd.DataFrame(done.rows)
+        write(table, out)
+        if done.timed:
+            write_timing(pd.DataFrame(done.timed), out)
+        print(summary_markdown(table))
+        print(f"wrote {out}/crosscheck.csv, crosscheck.md, crosscheck.png")
+
+    def verdict(done: Compared) -> None:
+        """A disagreement (exit 6) before a failed scene (exit 3), the report written."""
+        worst = worst_row(pd.DataFrame(done.rows))
+        if worst is not None:
+            raise Disagreement(f"{worst['scene']} ({worst['branch']}) n={int(worst['n'])}: {worst['field']} differs "
+                               f"by {worst['value']:.3g} relative (tolerance {TOLERANCE:g})")
+        if done.failures:
+            raise RunError(done.failures[0] + (f" (+{len(done.failures) - 1} more)" if len(done.failures) > 1 else ""))
+
+    run_pipeline(plan, runs, report, verdict)
     return 0
 
 
@@ -84,6 +108,9 @@ def plans_of(case: Path, overrides: list[str], branches: list[str] | None,
     base = load_scene(case, overrides)
     if base.element != "P1" or base.manufactured:
         raise SceneError(f"{case}: the GetFEM peer solves P1 scenes without manufactured sources")
+    law = base.sections.contact.friction_law if "friction" in base.effects else "tresca"
+    if law != "tresca":  # the peer's friction is Tresca's ball (peer_getfem/terms.py)
+        raise SceneError(f"{case}: the GetFEM peer solves Tresca friction only, not contact.friction_law = {law!r}")
     own = base.sections.scene.coarsest_guess if base.initial_guess == "coarser" else base.initial_guess
     out = []
     for start in branches or [own]:

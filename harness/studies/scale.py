@@ -59,7 +59,8 @@ def run(args: argparse.Namespace) -> int:
     if args.mpi_3d_levels:
         guarded += [Guarded(load_scene(CASES / "paper3d.toml", c), chain_levels(args.mpi_3d_levels)) for c in configs]
     guarded += [Guarded(load_scene(case), tuple(args.stress_levels)) for case in case_files([])]
-    plan = Plan(args.results, tuple(guarded), outputs=(out,), ignore_memory=args.ignore_memory)
+    plan = Plan(args.results, tuple(guarded), outputs=(out,), locked=tuple(work.case_dir(g.scene.name) for g in guarded),
+                ignore_memory=args.ignore_memory)
 
     def runs() -> tuple[pd.DataFrame, pd.DataFrame | None, pd.DataFrame]:
         mpi = mpi_table(CASES / "paper.toml", args.mpi_levels, (1, 2), work, args.coarse_spaces)

@@ -16,6 +16,7 @@ import pandas as pd
 
 from harness.arguments import add_cluster, add_common, add_levels, layout_of
 from harness.executor import cluster, each
+from harness.guards import Slope
 from harness.layout import REPO, Layout
 from harness.pipeline import Guarded, Plan, run_pipeline
 from harness.report import write_report
@@ -62,7 +63,7 @@ def run(args: argparse.Namespace) -> int:
     layout = layout_of(args)
     scenes = [load_scene(case) for case in sorted(args.cases.glob("*.toml"))]
     out = layout.results / "scenes"
-    plan = Plan(layout.results, tuple(Guarded(scene, args.levels or ()) for scene in scenes),
+    plan = Plan(layout.results, tuple(Guarded(scene, args.levels or (), Slope.AGAINST_FINEST) for scene in scenes),
                 scene_dirs=tuple(layout.case_dir(scene.name) for scene in scenes), outputs=(out,), nested=True,
                 ignore_memory=args.ignore_memory)
 

@@ -32,8 +32,10 @@ def run(args: argparse.Namespace) -> int:
 
 def solve(scene: Scene, n: int, layout: Layout, force: bool, ignore_memory: bool = False) -> RunResult:
     """One level; it writes its level dir alone (swapped in whole, harness/run.py), so the
-    pipeline's transaction owns nothing."""
-    plan = Plan(layout.results, (Guarded(scene, (n,)),), ignore_memory=ignore_memory)
+    pipeline's transaction owns nothing; it locks the scene's directory, which a study of
+    the same scene would otherwise change under it."""
+    plan = Plan(layout.results, (Guarded(scene, (n,)),), locked=(layout.case_dir(scene.name),),
+                ignore_memory=ignore_memory)
 
     def runs() -> RunResult:
         check_solver_files(scene, layout)

@@ -199,7 +199,8 @@ def run(args: argparse.Namespace) -> int:
     points = ([(load_scene(CASES / f"{case}.toml"), n) for case, n in [args.rank_point]] if args.ranks
               else [(solver_scene(case, name), n) for case, n in args.points for name in args.only])
     guarded = tuple(Guarded(scene, tuple(m for m in scene.levels if m < n) + (n,)) for scene, n in points)
-    plan = Plan(args.results, guarded, outputs=(args.results,), ignore_memory=args.ignore_memory)
+    plan = Plan(args.results, guarded, outputs=(args.results,),
+                locked=tuple(layout.case_dir(g.scene.name) for g in guarded), ignore_memory=args.ignore_memory)
     if args.ranks:
         # More ranks than cores: OpenMPI refuses them unless told (the counts are what is measured).
         os.environ.setdefault("OMPI_MCA_rmaps_base_oversubscribe", "1")

@@ -22,6 +22,7 @@ import pandas as pd
 
 from harness.arguments import add_common, add_jobs, add_levels, layout_of, name_list
 from harness.errors import SceneError
+from harness.guards import Slope
 from harness.gci import finest_triples, gci_table
 from harness.layout import REPO, Layout
 from harness.pipeline import Guarded, Plan, run_pipeline
@@ -112,8 +113,8 @@ def run(args: argparse.Namespace) -> int:
     layout = layout_of(args)
     scenes = mms_scenes(args.cases, args.levels) if args.cases else {}
     paper = None if args.skip_gci else load_scene(args.paper)
-    guarded = [Guarded(case.scene, case.levels) for case in scenes.values()]
-    guarded += [Guarded(paper)] if paper is not None else []
+    guarded = [Guarded(case.scene, case.levels, Slope.AGAINST_EXACT) for case in scenes.values()]
+    guarded += [Guarded(paper, slope=Slope.AGAINST_FINEST)] if paper is not None else []
     plan = Plan(layout.results, tuple(guarded), scene_dirs=tuple(layout.case_dir(g.scene.name) for g in guarded),
                 outputs=(layout.results / "verification",), nested=True, ignore_memory=args.ignore_memory)
 
