@@ -114,18 +114,22 @@ def test_a_case_that_does_not_warm_start_is_refused_up_front(capsys, tmp_path):
     assert not (tmp_path / "adapt" / "paper" / "n1").exists()
 
 
+def adapt_manufactured(tmp_path, case: str, steps: int, levels: str) -> tuple[dict, pd.DataFrame]:
+    """`adapt` on cases/mms/<case>.toml, warm-started, its uniform levels `levels`: summary, table."""
+    results = tmp_path / "results"
+    code = main(["adapt", str(REPO / "cases" / "mms" / f"{case}.toml"), "--steps", str(steps),
+                 "--set", 'scene.initial_guess="coarser"', "--set", f"study.levels={levels}",
+                 "--results", str(results)])
+    assert code == 0
+    out = results / "adapt" / f"mms_{case}"
+    return json.loads((out / "summary.json").read_text()), pd.read_csv(out / "adapt.csv")
+
+
 def test_a_smooth_manufactured_solution_keeps_the_optimal_rate_and_a_bounded_effectivity(tmp_path):
     """Known answer: on a smooth exact solution (with contact), errors against the exact fields
     fall as N^-1/2 along the adaptive sequence too, and the estimate stays close to them."""
-    results = tmp_path / "results"
-    code = main(["adapt", str(REPO / "cases" / "mms" / "contact.toml"), "--steps", "10",
-                 "--set", 'scene.initial_guess="coarser"', "--set", "study.levels=[4, 8, 16]",
-                 "--results", str(results)])
-    assert code == 0
-    out = results / "adapt" / "mms_contact"
-    summary = json.loads((out / "summary.json").read_text())
+    summary, table = adapt_manufactured(tmp_path, "contact", 10, "[4, 8, 16]")
     assert summary["errors_against"] == "the exact fields"
-    table = pd.read_csv(out / "adapt.csv")
     for field in ("u", "phi", "theta"):
         # measured 0.51-0.52 (steps 6-12), the uniform levels' 0.53-0.54
         assert abs(summary["rate_in_dofs"]["adaptive"][field] - 0.5) <= 0.05, summary["rate_in_dofs"]
@@ -151,14 +155,8 @@ def test_the_3d_loop_refines_the_papers_block_and_its_errors_fall(tmp_path):
 def test_the_3d_loop_keeps_the_optimal_rate_on_a_smooth_manufactured_solution(tmp_path):
     """Known answer in 3D: contact3d's exact fields on the box, longest-edge bisection: the errors
     against the exact fields fall at N^-1/3 or faster, the estimate stays close to them."""
-    results = tmp_path / "results"
-    code = main(["adapt", str(REPO / "cases" / "mms" / "contact3d.toml"), "--steps", "9",
-                 "--set", 'scene.initial_guess="coarser"', "--set", "study.levels=[2, 4]",
-                 "--results", str(results)])
-    assert code == 0
-    out = results / "adapt" / "mms_contact3d"
-    rates = json.loads((out / "summary.json").read_text())["rate_in_dofs"]
-    table = pd.read_csv(out / "adapt.csv")
+    summary, table = adapt_manufactured(tmp_path, "contact3d", 9, "[2, 4]")
+    rates = summary["rate_in_dofs"]
     for field in ("u", "phi", "theta"):
         # measured 0.35, 0.37, 0.47 over steps 5-9 (pre-asymptotic: above the optimal 1/3)
         assert rates["adaptive"][field] >= 0.3, rates
