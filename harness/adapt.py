@@ -11,7 +11,7 @@ library of `python -m harness adapt`.
   roles carried to the halves of every cut boundary facet.
 
 The true error of every step is measured against an overkill reference: the last step's
-mesh bisected uniformly (2D: twice, each cell into four; 3D: three rounds, each tetrahedron
+mesh bisected uniformly (2D: two rounds, each cell into four or more; 3D: three rounds, each tetrahedron
 into eight or more), solved warm from the last step. All
 adapted meshes are nested in it, so each step's error is computed exactly
 (norms.error_norms). The case's uniform levels are measured against the same reference
