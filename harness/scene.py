@@ -11,6 +11,7 @@ from pathlib import Path
 from typing import Any, Iterable
 
 from harness.errors import SceneError
+from harness.floating import check_floating
 from harness.petsc_plugin import default_options, factorising, multigrid
 from harness.box import Box, parse_box
 from harness.gmsh_geometry import GmshGeometry, check_poling, parse_gmsh
@@ -169,6 +170,7 @@ def load_scene(path: Path, overrides: Iterable[str] = ()) -> Scene:
         table, warnings = resolve(raw)
         geometry = parse_any_geometry(table, path.parent)
         check_poling(table["scene"]["poling_axis"], getattr(geometry, "dimension", 2))
+        check_floating(table, geometry)
         check_expect(table["expect"])
     except SceneError as exc:
         raise SceneError(f"{path}: {exc}") from None  # every case-file error names the file

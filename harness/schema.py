@@ -106,6 +106,7 @@ DATA_EFFECT: dict[tuple[str, str | None], str] = {
     ("loads", "surface_charge"): "piezoelectric",
     ("loads", "charge_density"): "piezoelectric",
     ("loads", "electrode_potential"): "piezoelectric",
+    ("loads", "floating_charge"): "piezoelectric",
     ("loads", "heat_source"): "thermal",
 }
 
@@ -182,6 +183,9 @@ SCHEMA: dict[str, dict[str, Key]] = {
             "body_force_y", "body_force_z", "charge_density", "heat_source",
             # phi on the parts whose role is `electrode` [V] (the `ground` parts hold 0)
             "electrode_potential",
+            # the net free charge on the parts whose role is `floating` [C/m in 2D, C in 3D]:
+            # one open conductor at a uniform, unknown potential (docs/model.md)
+            "floating_charge",
         )
     },
     "contact": {
