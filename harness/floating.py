@@ -23,7 +23,7 @@ def check_floating(table: dict[str, dict[str, Any]], geometry: Any) -> None:
     """A floating electrode needs the potential and the sequential direct solve (its exact
     elimination is written for one rank's matrices); a charge needs an electrode to sit on."""
     floating = ROLE in roles_of(geometry)
-    charge = table["loads"]["floating_charge"]
+    charge = table["loads"].get("floating_charge", 0.0)  # absent: the potential is off
     if not floating:
         if charge != 0:
             raise SceneError(f"loads.floating_charge = {charge!r}: no boundary part has the role 'floating'")
