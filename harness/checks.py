@@ -49,8 +49,8 @@ TOLERANCES: dict[str, tuple[float, str]] = {
                        "reactions, as electrode_charge) equals the given loads.floating_charge: the "
                        "eliminated unknown's equation is that sum, so it holds up to Newton's final "
                        "residual, as the charge balance; relative to the larger of |Q| and the round-off "
-                       "floor of the terms summed (floating_charge_reading); measured <= 3e-16 of the "
-                       "reading on the floating layer and sensor (tests/test_floating.py)"),
+                       "floor of the terms summed (floating_charge_reading); measured <= 1.1e-15 of Q, "
+                       "2e-16 of the reading for Q = 0 (tests/test_floating.py, n = 2, 4, 8)"),
 }
 
 

@@ -146,3 +146,27 @@ def test_crosscheck_refuses_a_floating_electrode_as_unsupported(tmp_path, capsys
     err = capsys.readouterr().err.strip().splitlines()
     assert code == ExitCode.INPUT and len(err) == 1, err
     assert "floating_layer.toml" in err[0] and "no floating electrode" in err[0]
+
+
+def test_a_floating_electrode_on_the_contact_scene_is_the_driven_one_of_its_own_potential(tmp_path):
+    """With contact, friction and heat (the paper's scene, its top's middle floating with no
+    charge, pressed by its weight): an electrode driven at the floating potential found gives the same
+    state and carries no charge, the nonlinear case's known answer."""
+    top = 'geometry.top=[[0.0, 1.0, "free"], [1.0, 3.0, "{}"], [3.0, 4.0, "free"]]'
+    floating = solve(DATA / "paper.toml", 4, tmp_path, top.format("floating"), "loads.traction_y=0", "loads.body_force_y=-50",
+                     "scene.name=open")
+    potential = floating.record.checks["floating_potential"]
+    assert floating.record.contact_force > 0 and abs(potential) > 1.0   # the contact and the field act
+    assert floating.record.checks["floating_charge"] == pytest.approx(0.0, abs=1e-12 * floating.record.checks["floating_charge_reading"])
+    driven = solve(DATA / "paper.toml", 4, tmp_path, top.format("electrode"), "loads.traction_y=0", "loads.body_force_y=-50",
+                   f"loads.electrode_potential={potential!r}", "scene.name=driven")
+    # Both converged quadratically past newton.rtol = 1e-9, so round-off is left: measured
+    # <= 1.2e-14 of each field and 1.5e-17 of the charge's reading at n = 4, 8 (V = -12.5, -14.1 V);
+    # 1e-11 leaves room for another sparse solver's pivoting.
+    reading = driven.record.checks["charge_reading"]
+    assert abs(driven.record.checks["electrode_charge"]) < 1e-11 * reading
+    u_open, phi_open, theta_open = read_state(tmp_path / "open" / "n4" / "state.txt")
+    u_driven, phi_driven, theta_driven = read_state(tmp_path / "driven" / "n4" / "state.txt")
+    assert u_driven == pytest.approx(u_open, abs=1e-11 * np.abs(u_open).max())
+    assert phi_driven == pytest.approx(phi_open, abs=1e-11 * np.abs(phi_open).max())
+    assert theta_driven == pytest.approx(theta_open, abs=1e-11 * np.abs(theta_open).max())
