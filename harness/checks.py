@@ -138,7 +138,9 @@ def floors(c: dict[str, Any], length: float) -> dict[str, float]:
     for name in ("heat", "charge"):
         out[name] = max(roundoff(f"{name}_reading", name), FLOOR * natural[name] * length, NOTHING_FLOWS)
         out[f"{name}_open_flux"] = max(roundoff(f"{name}_flux_reading", "open_flux"), FLOOR * natural[name], 1e-300)
-    out["floating"] = max(roundoff("floating_charge_reading", "floating"), NOTHING_FLOWS)
+    # One per floating electrode (run.json's lists, in harness/contract.py FLOATING_ROLES order).
+    out["floating"] = [max(ROUNDINGS * EPS * reading / TOLERANCES["floating"][0], NOTHING_FLOWS)
+                       for reading in c.get("floating_charge_reading", [])]
     return out
 
 
@@ -209,8 +211,9 @@ def physical_checks(record: RunRecord, scene: Scene) -> dict[str, Any]:
         "charge_ok": out["charge_imbalance"] <= tol["charge"] or not out["charge_driven"],
     })
     if "floating_charge" in c:
-        given = c.get("floating_charge_given", 0.0)
-        out["floating_charge_error"] = abs(c["floating_charge"] - given) / max(abs(given), floor["floating"])
+        # The worst electrode's: |charge read - given| relative to the larger of |given| and its floor.
+        out["floating_charge_error"] = max(abs(read - given) / max(abs(given), low) for read, given, low
+                                           in zip(c["floating_charge"], c["floating_charge_given"], floor["floating"]))
         out["floating_ok"] = out["floating_charge_error"] <= tol["floating"]
     out["checks_ok"] = all(out[k] for k in CHECK_FLAGS + SCENE_FLAGS if k in out)
     return out

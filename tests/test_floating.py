@@ -33,13 +33,13 @@ def test_a_charged_floating_electrode_holds_the_plate_formula_potential(tmp_path
     charge, width, thickness = 3.5e-6, 2.0, 1.0
     exact = charge * thickness / (EPS * width)   # V = Q t / (eps A): 99.12 V
     # The field is uniform, so P1 is exact: measured 3e-16 relative at n = 2 and 4.
-    assert checks["floating_potential"] == pytest.approx(exact, rel=1e-10)
+    assert checks["floating_potential"][0] == pytest.approx(exact, rel=1e-10)
     u, phi = read_state(tmp_path / "floating_layer" / f"n{n}" / "state.txt")
     y = np.round(run.fields.points[:, 1].astype(float) * n) / n
     assert phi == pytest.approx(exact * y / thickness, abs=1e-10 * exact)
     # The charge read from the residual is the given one, and the check says so.
-    assert checks["floating_charge"] == pytest.approx(charge, rel=1e-10)
-    assert checks["floating_charge_given"] == charge
+    assert checks["floating_charge"][0] == pytest.approx(charge, rel=1e-10)
+    assert checks["floating_charge_given"][0] == charge
     # All of it leaves through the earthed base (the charge balance's source).
     assert checks["charge_out_dirichlet"] == pytest.approx(charge, rel=1e-10)
     assert checks["charge_source"] == charge
@@ -48,9 +48,9 @@ def test_a_charged_floating_electrode_holds_the_plate_formula_potential(tmp_path
 def test_the_floating_potential_is_linear_in_the_charge(tmp_path):
     """Q = 0 leaves the layer unloaded; -2Q gives -2V exactly."""
     zero = solve(DATA / "floating_layer.toml", 2, tmp_path, "loads.floating_charge=0", "scene.name=zero")
-    assert zero.record.max_abs_u == 0.0 and zero.record.checks["floating_potential"] == 0.0
+    assert zero.record.max_abs_u == 0.0 and zero.record.checks["floating_potential"][0] == 0.0
     minus = solve(DATA / "floating_layer.toml", 2, tmp_path, "loads.floating_charge=-7e-6", "scene.name=minus")
-    assert minus.record.checks["floating_potential"] == pytest.approx(-7e-6 / (EPS * 2.0), rel=1e-10)
+    assert minus.record.checks["floating_potential"][0] == pytest.approx(-7e-6 / (EPS * 2.0), rel=1e-10)
 
 
 @pytest.mark.parametrize("n", [2, 4])
@@ -61,9 +61,9 @@ def test_an_uncharged_floating_electrode_midway_holds_half_the_drive(tmp_path, n
     _, phi = read_state(tmp_path / "floating_symmetric" / f"n{n}" / "state.txt")
     parts = on_part(run.fields.points, n, 0.0, 0.5, 1.5) | on_part(run.fields.points, n, 1.0, 0.5, 1.5)
     # Round-off of the symmetric discrete problem: measured <= 3e-14 V.
-    assert run.record.checks["floating_potential"] == pytest.approx(50.0, abs=1e-10)
+    assert run.record.checks["floating_potential"][0] == pytest.approx(50.0, abs=1e-10)
     assert phi[parts] == pytest.approx(np.full(parts.sum(), 50.0), abs=1e-10)
-    assert abs(run.record.checks["floating_charge"]) < 1e-12 * EPS * 100.0
+    assert abs(run.record.checks["floating_charge"][0]) < 1e-12 * EPS * 100.0
     free = solve(DATA / "floating_symmetric.toml", n, tmp_path, "scene.name=free",
                  'geometry.bottom=[[0.0, 0.5, "roller_x"], [0.5, 1.5, "free"], [1.5, 2.0, "roller_y"]]',
                  'geometry.top=[[0.0, 0.5, "roller_y"], [0.5, 1.5, "free"], [1.5, 2.0, "roller_x"]]')
@@ -82,15 +82,15 @@ def test_a_pressed_layer_with_an_open_electrode_gives_the_sensor_voltage(tmp_pat
     checks = run.record.checks
     exact = exact_sensor_voltage(1.0e4, 1.0)   # -112.8 V
     # Uniform field, P1 exact: measured 1e-15 relative (2D n = 2, 4; 3D n = 2).
-    assert checks["floating_potential"] == pytest.approx(exact, rel=1e-10)
+    assert checks["floating_potential"][0] == pytest.approx(exact, rel=1e-10)
     # The textbook plate formula V = g33 t F / A (laterally free, g33 = d33 / eps33^T =
     # 19.7e-3 V m/N for PZT-5H: Morgan Electro Ceramics' data as in the material file) has
     # the same sign convention and order: the laterally held layer is stiffer electrically.
     g33_textbook = 593e-12 / (3400 * 8.854e-12)
-    ratio = checks["floating_potential"] / (-g33_textbook * 1.0e4 * 1.0)
+    ratio = checks["floating_potential"][0] / (-g33_textbook * 1.0e4 * 1.0)
     assert 0.5 < ratio < 1.0
     # The given charge (0) on the electrode to round-off of the terms its reading sums.
-    assert abs(checks["floating_charge"]) <= 1e-12 * checks["floating_charge_reading"]
+    assert abs(checks["floating_charge"][0]) <= 1e-12 * checks["floating_charge_reading"][0]
 
 
 def one_error_line(err: str) -> str:
@@ -155,9 +155,9 @@ def test_a_floating_electrode_on_the_contact_scene_is_the_driven_one_of_its_own_
     top = 'geometry.top=[[0.0, 1.0, "free"], [1.0, 3.0, "{}"], [3.0, 4.0, "free"]]'
     floating = solve(DATA / "paper.toml", 4, tmp_path, top.format("floating"), "loads.traction_y=0", "loads.body_force_y=-50",
                      "scene.name=open")
-    potential = floating.record.checks["floating_potential"]
+    potential = floating.record.checks["floating_potential"][0]
     assert floating.record.contact_force > 0 and abs(potential) > 1.0   # the contact and the field act
-    assert floating.record.checks["floating_charge"] == pytest.approx(0.0, abs=1e-12 * floating.record.checks["floating_charge_reading"])
+    assert floating.record.checks["floating_charge"][0] == pytest.approx(0.0, abs=1e-12 * floating.record.checks["floating_charge_reading"][0])
     driven = solve(DATA / "paper.toml", 4, tmp_path, top.format("electrode"), "loads.traction_y=0", "loads.body_force_y=-50",
                    f"loads.electrode_potential={potential!r}", "scene.name=driven")
     # Both converged quadratically past newton.rtol = 1e-9, so round-off is left: measured
@@ -170,3 +170,37 @@ def test_a_floating_electrode_on_the_contact_scene_is_the_driven_one_of_its_own_
     assert u_driven == pytest.approx(u_open, abs=1e-11 * np.abs(u_open).max())
     assert phi_driven == pytest.approx(phi_open, abs=1e-11 * np.abs(phi_open).max())
     assert theta_driven == pytest.approx(theta_open, abs=1e-11 * np.abs(theta_open).max())
+
+
+def test_two_floating_electrodes_are_reciprocal_and_superpose(tmp_path):
+    """floating_pair.toml: the potential a charge on one electrode raises on the other is the
+    same both ways (the elastance matrix of a self-adjoint problem is symmetric), and both
+    charges together give the sum of the two states; each electrode keeps its own charge."""
+    q = 1.0e-6
+    one = solve(DATA / "floating_pair.toml", 4, tmp_path).record.checks
+    two = solve(DATA / "floating_pair.toml", 4, tmp_path, "loads.floating_charge=0", f"loads.floating_charge_2={q}",
+                "scene.name=second").record.checks
+    both = solve(DATA / "floating_pair.toml", 4, tmp_path, f"loads.floating_charge_2={q}", "scene.name=both").record.checks
+    assert len(one["floating_potential"]) == 2 and one["floating_charge_given"] == [q, 0.0]
+    # Measured 2e-16 relative (n = 4): the discrete problem is symmetric too.
+    assert one["floating_potential"][1] == pytest.approx(two["floating_potential"][0], rel=1e-10)
+    assert one["floating_potential"][1] > 0   # the other electrode is not a copy: 16.3 V against 47.0 V
+    assert one["floating_potential"][1] < 0.5 * one["floating_potential"][0]
+    for k in (0, 1):
+        assert both["floating_potential"][k] == pytest.approx(one["floating_potential"][k] + two["floating_potential"][k],
+                                                              rel=1e-10)
+        assert both["floating_charge"][k] == pytest.approx(q, rel=1e-10)
+
+
+def test_two_floating_electrodes_sharing_a_node_are_refused_with_one_line(tmp_path, capsys):
+    code = main(["solve", str(DATA / "floating_pair.toml"), "--n", "4", "--results", str(tmp_path), "--set",
+                 'geometry.top=[[0.0, 1.0, "floating"], [1.0, 2.0, "floating_2"]]'])
+    line = one_error_line(capsys.readouterr().err)
+    assert code == ExitCode.INPUT and "two floating electrodes share a node" in line
+
+
+def test_a_charge_for_an_electrode_the_scene_lacks_is_refused_with_one_line(tmp_path, capsys):
+    code = main(["solve", str(DATA / "floating_layer.toml"), "--n", "2", "--results", str(tmp_path), "--set",
+                 "loads.floating_charge_3=1e-6"])
+    line = one_error_line(capsys.readouterr().err)
+    assert code == ExitCode.INPUT and "loads.floating_charge_3" in line and "'floating_3'" in line

@@ -59,8 +59,9 @@ def describe_run(case: str, record: RunRecord, directory: Path, reused: bool) ->
     r = record
     state = "converged" if r.converged else f"NOT converged ({r.reason})"
     c = r.checks or {}
-    floating = [f"  floating electrode at {fmt(c['floating_potential'])} V, charge {fmt(c['floating_charge'])}"
-                f" (given {fmt(c['floating_charge_given'])})"] if "floating_potential" in c else []
+    floating = [f"  floating electrode {k + 1} at {fmt(volts)} V, charge {fmt(charge)} (given {fmt(given)})"
+                for k, (volts, charge, given) in enumerate(zip(c.get("floating_potential", []), c.get("floating_charge", []),
+                                                               c.get("floating_charge_given", [])))]
     return "\n".join([
         f"{case} n={r.n}: {state} in {r.newton_iterations} Newton iterations"
         f" (initial guess {r.initial_guess}){' [reused]' if reused else ''}",
