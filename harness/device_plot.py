@@ -58,17 +58,18 @@ def face_nodes(pts: np.ndarray, top: bool) -> np.ndarray:
     return np.flatnonzero(np.abs(pts[:, 2] - z) < 1e-6 * np.ptp(pts[:, 2]))
 
 
-def face_panel(f: Fields, name: str) -> tuple[str, np.ndarray, np.ndarray]:
+def face_panel(f: Fields, name: str, unit: str) -> tuple[str, str, np.ndarray, np.ndarray]:
     """What a field's face panel shows: the field on the bottom face (where a device meets its
     pad), or on the top face where only that one varies; where both faces hold one value (an
     earthed base under a floating electrode), the vertical displacement on the top face, which
-    the field's uniform value says nothing about."""
+    the field's uniform value says nothing about. Returns the title, the colour bar's label,
+    the face's nodes and the values shown (at every node)."""
     values = f.field(name)
     for top in (False, True):
         nodes = face_nodes(f.points, top)
         if np.ptp(values[nodes]) > 1e-9 * max(np.ptp(values), 1e-300):
-            return f"{name} on the {'top' if top else 'bottom'} face", nodes, values
-    return "u_z on the top face", face_nodes(f.points, True), f.field("u")[:, 2]
+            return f"{name} on the {'top' if top else 'bottom'} face", f"{name} [{unit}]", nodes, values
+    return "u_z on the top face", "u_z [m]", face_nodes(f.points, True), f.field("u")[:, 2]
 
 
 def render_3d(f: Fields, fig: plt.Figure) -> None:
@@ -77,9 +78,9 @@ def render_3d(f: Fields, fig: plt.Figure) -> None:
     axes = fig.subplots(len(panels(f)), 2, squeeze=False)
     for row, (name, unit) in enumerate(panels(f)):
         values = f.field(name)
-        title, nodes, shown = face_panel(f, name)
+        title, label, nodes, shown = face_panel(f, name, unit)
         face = Triangulation(1e3 * pts[nodes, 0], 1e3 * pts[nodes, 1])
-        contour(axes[row, 0], face, shown[nodes], title.split(" on ")[0] + (" [m]" if title.startswith("u_z") else f" [{unit}]"))
+        contour(axes[row, 0], face, shown[nodes], label)
         axes[row, 0].set(title=title, xlabel="x [mm]", ylabel="y [mm]", aspect="equal")
         contour(axes[row, 1], Triangulation(1e3 * cut.coords[:, 0], 1e3 * cut.coords[:, 1], cut.triangles),
                 cut.of(values), f"{name} [{unit}]")

@@ -134,7 +134,7 @@ def test_the_sensor_picture_shows_the_top_face_displacement(tmp_path):
     from harness.device_plot import face_panel, render
 
     run = solve(CASES / "force_sensor.toml", 2, tmp_path)
-    title, nodes, shown = face_panel(run.fields, "phi")
-    assert title == "u_z on the top face" and np.ptp(shown[nodes]) > 0
+    title, label, nodes, shown = face_panel(run.fields, "phi", "V")
+    assert title == "u_z on the top face" and label == "u_z [m]" and np.ptp(shown[nodes]) > 0
     render(tmp_path / "force_sensor" / "n2", tmp_path / "fields.png")
     assert (tmp_path / "fields.png").stat().st_size > 10_000
