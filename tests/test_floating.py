@@ -204,3 +204,20 @@ def test_a_charge_for_an_electrode_the_scene_lacks_is_refused_with_one_line(tmp_
                  "loads.floating_charge_3=1e-6"])
     line = one_error_line(capsys.readouterr().err)
     assert code == ExitCode.INPUT and "loads.floating_charge_3" in line and "'floating_3'" in line
+
+
+@pytest.mark.parametrize("n", [2, 4])
+def test_a_laterally_free_pressed_plate_gives_the_textbook_plate_formula(tmp_path, n):
+    """floating_free_sensor3d.toml: a free slab pressed through an uncharged floating electrode
+    onto an earthed frictionless foundation holds V = -g33 t p, g33 = d33 / eps33^T from the
+    material's C, e, beta (19.53e-3 V m/N for PZT-5H): -195.25 V at p = 10 kPa, t = 1 m."""
+    c = np.array([[12.6e10, 7.95e10, 8.41e10], [7.95e10, 12.6e10, 8.41e10], [8.41e10, 8.41e10, 11.7e10]])
+    e3 = np.array([-6.5, -6.5, 23.3])
+    d3 = np.linalg.solve(c, e3)
+    g33 = d3[2] / (BETA33 + e3 @ d3)
+    run = solve(DATA / "floating_free_sensor3d.toml", n, tmp_path)
+    checks = run.record.checks
+    # The uniform state, P1 exact; the contact only closes uniformly: measured 2.3e-15 relative.
+    assert checks["floating_potential"][0] == pytest.approx(-g33 * 1.0 * 1.0e4, rel=1e-10)
+    assert run.record.contact_force == pytest.approx(1.0e4 * 2.0 * 1.0, rel=1e-10)
+    assert abs(checks["floating_charge"][0]) <= 1e-12 * checks["floating_charge_reading"][0]
