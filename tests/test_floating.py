@@ -221,3 +221,15 @@ def test_a_laterally_free_pressed_plate_gives_the_textbook_plate_formula(tmp_pat
     assert checks["floating_potential"][0] == pytest.approx(-g33 * 1.0 * 1.0e4, rel=1e-10)
     assert run.record.contact_force == pytest.approx(1.0e4 * 2.0 * 1.0, rel=1e-10)
     assert abs(checks["floating_charge"][0]) <= 1e-12 * checks["floating_charge_reading"][0]
+
+
+def test_make_crosscheck_leaves_out_the_scenes_with_a_floating_electrode():
+    """`make crosscheck` runs every case but those the peer cannot solve: with the force sensor
+    among them it would stop at the refusal (exit 2) instead of crosschecking the rest."""
+    import subprocess
+    from pathlib import Path
+
+    root = Path(__file__).parents[1]
+    listed = subprocess.run(["make", "-n", "crosscheck"], cwd=root, capture_output=True, text=True, check=True,
+                            timeout=60).stdout.splitlines()[-1]
+    assert "cases/disc_pad.toml" in listed and "cases/force_sensor.toml" not in listed
