@@ -29,6 +29,9 @@ CHECK_KEYS = frozenset({
     "max_charge_flux_contact", "max_charge_flux_open", "max_charge_flux_open_expected",
     # the size of the terms each reading sums (the checks' floors, harness/checks.py)
     "force_reading", "traction_reading", "heat_reading", "heat_flux_reading", "charge_reading", "charge_flux_reading",
+    # a floating electrode's potential, its charge read from the residual, the given one, and the
+    # size of the terms that reading sums (freefem/floating.idp; only when the scene has one)
+    "floating_potential", "floating_charge", "floating_charge_given", "floating_charge_reading",
 })
 
 

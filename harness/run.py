@@ -18,6 +18,7 @@ from harness.cache import cached_record, run_inputs, sha256_file, write_checksum
 from harness.errors import EnvironmentFault, HarnessError, RunError, SceneError
 from harness.gmsh_geometry import GmshGeometry
 from harness.faults import disk_full, space_for
+from harness.floating import floating_macros
 from harness.signals import CHILDREN, Interrupted
 from harness.layout import Layout
 from harness.mesh import coarser_meshes, family_levels
@@ -253,7 +254,7 @@ def solver_inputs(
     On several ranks (run.ranks > 1) the text is the distributed scheme's, unless `sequential`.
     The coarser meshes the options name (a multigrid's levels, a coarse space) are made only
     with `make_meshes`: the cache key needs their names alone."""
-    macros = {**manufactured_macros(scene, layout), **scene.reference_macros()}
+    macros = {**manufactured_macros(scene, layout), **scene.reference_macros(), **floating_macros(scene.geometry)}
     parallel = launcher.ranks_of(scene).parallel and not sequential
     petsc = scene.linear_solver == "petsc"
     text = main_script(scene.material, scene.effects, layout, element=scene.element, macros=macros,

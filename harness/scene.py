@@ -12,6 +12,7 @@ from pathlib import Path
 from typing import Any, Iterable
 
 from harness.errors import SceneError
+from harness.floating import check_floating
 from harness.petsc_plugin import default_options, factorising, multigrid
 from harness.box import Box, parse_box
 from harness.gmsh_geometry import GmshGeometry, check_poling, parse_gmsh
@@ -182,6 +183,7 @@ def load_scene(path: Path, overrides: Iterable[str] = ()) -> Scene:
         geometry = parse_any_geometry(table, path.parent)
         check_poling(table["scene"]["poling_axis"], getattr(geometry, "dimension", 2))
         check_fixed(geometry, table["scene"]["effects"], table)
+        check_floating(table, geometry)
         check_expect(table["expect"])
     except SceneError as exc:
         raise SceneError(f"{path}: {exc}") from None  # every case-file error names the file

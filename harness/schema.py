@@ -10,7 +10,7 @@ import math
 from dataclasses import dataclass
 from typing import Any, Callable
 
-from harness.contract import ROLE_LABELS  # noqa: F401  (re-exported: the roles a scene may name)
+from harness.contract import FLOATING_CHARGES, ROLE_LABELS  # noqa: F401  (ROLE_LABELS re-exported: the roles a scene may name)
 
 # Sections passed verbatim to FreeFEM as `-<section>.<key> <value>`.
 SOLVER_SECTIONS = ("loads", "contact", "electric_contact", "thermal_contact", "newton")
@@ -109,6 +109,7 @@ DATA_EFFECT: dict[tuple[str, str | None], str] = {
     ("loads", "surface_charge"): "piezoelectric",
     ("loads", "charge_density"): "piezoelectric",
     ("loads", "electrode_potential"): "piezoelectric",
+    **{("loads", key): "piezoelectric" for key in FLOATING_CHARGES.values()},
     ("loads", "heat_source"): "thermal",
 }
 
@@ -185,6 +186,10 @@ SCHEMA: dict[str, dict[str, Key]] = {
             "body_force_y", "body_force_z", "charge_density", "heat_source",
             # phi on the parts whose role is `electrode` [V] (the `ground` parts hold 0)
             "electrode_potential",
+            # the net free charge on the parts whose role is `floating` [C/m in 2D, C in 3D]:
+            # one open conductor at a uniform, unknown potential (docs/model.md); _2, _3:
+            # those of the roles floating_2, floating_3, two more conductors
+            *FLOATING_CHARGES.values(),
         )
     },
     "contact": {

@@ -19,6 +19,7 @@ from harness.crosscheck import TOLERANCE, differences, integral_differences
 from harness.engine import InlineMeshes, quiet, run_levels, runs_of
 from harness.errors import Disagreement, FieldsError, RunError, SceneError
 from harness.fields import Fields, read_fields
+from harness.floating import floating_macros
 from harness.layout import Layout
 from harness.pipeline import Guarded, Plan, run_pipeline
 from harness.norm_table import MEASURE
@@ -111,6 +112,8 @@ def plans_of(case: Path, overrides: list[str], branches: list[str] | None,
     law = base.sections.contact.friction_law if "friction" in base.effects else "tresca"
     if law != "tresca":  # the peer's friction is Tresca's ball (peer_getfem/terms.py)
         raise SceneError(f"{case}: the GetFEM peer solves Tresca friction only, not contact.friction_law = {law!r}")
+    if floating_macros(base.geometry):  # the peer has no floating electrode: unsupported, not a disagreement
+        raise SceneError(f"{case}: the GetFEM peer has no floating electrode (a part with the role 'floating')")
     own = base.sections.scene.coarsest_guess if base.initial_guess == "coarser" else base.initial_guess
     out = []
     for start in branches or [own]:

@@ -58,12 +58,17 @@ def solve(scene: Scene, n: int, layout: Layout, force: bool, ignore_memory: bool
 def describe_run(case: str, record: RunRecord, directory: Path, reused: bool) -> str:
     r = record
     state = "converged" if r.converged else f"NOT converged ({r.reason})"
+    c = r.checks or {}
+    floating = [f"  floating electrode {k + 1} at {fmt(volts)} V, charge {fmt(charge)} (given {fmt(given)})"
+                for k, (volts, charge, given) in enumerate(zip(c.get("floating_potential", []), c.get("floating_charge", []),
+                                                               c.get("floating_charge_given", [])))]
     return "\n".join([
         f"{case} n={r.n}: {state} in {r.newton_iterations} Newton iterations"
         f" (initial guess {r.initial_guess}){' [reused]' if reused else ''}",
         f"  dofs {r.dofs}, wall {fmt(r.wall_s)} s (assembly {fmt(r.assembly_s)} s, solves {fmt(r.solve_s)} s)",
         f"  max theta {fmt(r.max_theta)}, phi in [{fmt(r.min_phi)}, {fmt(r.max_phi)}], max |u| {fmt(r.max_abs_u)}",
         f"  contact force {fmt(r.contact_force)}, closed part of Gamma_3 {fmt(r.active_measure)}",
+        *floating,
         f"  results in {directory}",
     ])
 
