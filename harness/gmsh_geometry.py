@@ -251,22 +251,3 @@ def contact_facets(dimension: int, entities: list[int]) -> tuple[tuple[tuple[flo
             for cell in np.asarray(nodes, dtype=int).reshape(-1, per)[:, :dimension]:
                 out.append(tuple(tuple(float(x) for x in where[int(t)]) for t in cell))
     return tuple(out)
-
-
-def check_poling(value: Any, dimension: int) -> None:
-    """The poling axis (the material's axis 3) a scene may name: the default one only (y in
-    2D, z in 3D), as a named axis or a unit vector. A rotated poling would need the material
-    tensors rotated in freefem/constitutive.idp; until then it is refused, and a user rotates
-    the drawing instead."""
-    default = "y" if dimension == 2 else "z"
-    vector = [0.0] * dimension
-    vector[dimension - 1] = 1.0
-    if value in ("", default):
-        return
-    if isinstance(value, list) and len(value) == dimension and all(
-            isinstance(x, (int, float)) and not isinstance(x, bool) for x in value):
-        norm = math.sqrt(sum(x * x for x in value))
-        if norm > 0 and all(abs(x / norm - v) <= 1e-12 for x, v in zip(value, vector)):
-            return
-    raise SceneError(f"scene.poling_axis = {value!r}: only the default axis is supported ({default!r} or "
-                     f"{vector} in {dimension}D); rotate the geometry so that the poling runs along {default}")

@@ -24,7 +24,7 @@ import math
 import tempfile
 from dataclasses import dataclass
 from pathlib import Path
-from typing import Callable, Mapping
+from typing import Any, Callable, Mapping
 
 import numpy as np
 import sympy
@@ -45,6 +45,18 @@ VOIGT_PAIRS = {1: (1, 1), 2: (2, 2), 3: (3, 3), 4: (2, 3), 5: (1, 3), 6: (1, 2)}
 ELASTIC = {(1, 1): "f11", (1, 2): "fC12", (1, 3): "f13", (2, 2): "fC22", (2, 3): "fC23", (3, 3): "f33",
            (4, 4): "f2323", (5, 5): "f44", (6, 6): "f1212"}
 PIEZO = {(1, 5): "e15", (2, 4): "e24", (3, 1): "e31", (3, 2): "e32", (3, 3): "e33"}
+# The other entries of a set rotated to a scene's poling axis (freefem/material.idp, "Poling"):
+# C_IJ and e_kI as above, beta_kl and k_kl (k < l), m_I; present only for a rotated poling.
+ROTATED_ELASTIC = {(1, 4): "gC14", (1, 5): "gC15", (1, 6): "gC16", (2, 4): "gC24", (2, 5): "gC25", (2, 6): "gC26",
+                   (3, 4): "gC34", (3, 5): "gC35", (3, 6): "gC36", (4, 5): "gC45", (4, 6): "gC46", (5, 6): "gC56"}
+ROTATED_PIEZO = {(1, 1): "ge11", (1, 2): "ge12", (1, 3): "ge13", (1, 4): "ge14", (1, 6): "ge16",
+                 (2, 1): "ge21", (2, 2): "ge22", (2, 3): "ge23", (2, 5): "ge25", (2, 6): "ge26",
+                 (3, 4): "ge34", (3, 5): "ge35", (3, 6): "ge36"}
+ROTATED_PERMITTIVITY = {(1, 2): "gb12", (1, 3): "gb13", (2, 3): "gb23"}
+ROTATED_CONDUCTIVITY = {(1, 2): "gk12", (1, 3): "gk13", (2, 3): "gk23"}
+ROTATED_STRESS_TEMPERATURE = {4: "gm4", 5: "gm5", 6: "gm6"}
+ROTATED = (tuple(ROTATED_ELASTIC.values()) + tuple(ROTATED_PIEZO.values()) + tuple(ROTATED_PERMITTIVITY.values())
+           + tuple(ROTATED_CONDUCTIVITY.values()) + tuple(ROTATED_STRESS_TEMPERATURE.values()))
 # Material axis -> coordinate: axis 3 (poling) is y in 2D (plane strain in the 1-3 plane), z in 3D.
 AXES = {2: {1: X, 3: Y}, 3: {1: X, 2: Y, 3: Z}}
 # The contract with freefem/ (macro name -> derived quantity), all in x, y and SI units.
@@ -93,11 +105,12 @@ def derive(exact: Exact, constants: Mapping[str, float], effects: tuple[str, ...
     on, with the Voigt law of freefem/constitutive.idp in material axes (AXES): in 2D the
     axis-2 terms vanish (plane strain) and the keys are sig11, sig33, sig13, D1, D3, q1, q3,
     f1, f2; in 3D every component is there."""
-    names = CONSTANTS + CONSTANTS_3D * (dimension == 3)
+    rotated = any(k in constants for k in ROTATED)
+    names = CONSTANTS + CONSTANTS_3D * (dimension == 3) + ROTATED * rotated
     c = {k: sympy.Float(constants[k]) if k in constants else sympy.Symbol(k) for k in names}
     piezo, thermal = "piezoelectric" in effects, "thermal" in effects
     if not piezo:
-        for name in PIEZO.values():
+        for name in (*PIEZO.values(), *(ROTATED_PIEZO.values() if rotated else ())):
             c[name] = sympy.Integer(0)
     if "pyroelectric" not in effects:
         for name in ("p1", "p2", "p3"):
@@ -116,24 +129,33 @@ def derive(exact: Exact, constants: Mapping[str, float], effects: tuple[str, ...
     eps = {I: d(w(a), a) if a == b else d(w(a), b) + d(w(b), a) for I, (a, b) in VOIGT_PAIRS.items()}
     present = [I for I, (a, b) in VOIGT_PAIRS.items() if a in axes and b in axes]
 
-    def C(I: int, J: int) -> sympy.Expr:
-        name = ELASTIC.get((min(I, J), max(I, J)))
+    def entry(table: Mapping, extra: Mapping, key: Any) -> sympy.Expr:
+        name = table.get(key) or (extra.get(key) if rotated else None)
         return c[name] if name else sympy.Integer(0)
 
+    def C(I: int, J: int) -> sympy.Expr:
+        return entry(ELASTIC, ROTATED_ELASTIC, (min(I, J), max(I, J)))
+
     def e(k: int, I: int) -> sympy.Expr:
-        return c[PIEZO[(k, I)]] if (k, I) in PIEZO else sympy.Integer(0)
+        return entry(PIEZO, ROTATED_PIEZO, (k, I))
 
     def m(I: int) -> sympy.Expr:
-        return c.get(f"m{I}{I}", sympy.Integer(0)) if I <= 3 else sympy.Integer(0)
+        return entry({J: f"m{J}{J}" for J in (1, 2, 3) if f"m{J}{J}" in c}, ROTATED_STRESS_TEMPERATURE, I)
+
+    def b(k: int, l: int) -> sympy.Expr:
+        return c[f"b{k}{k}"] if k == l else entry({}, ROTATED_PERMITTIVITY, (min(k, l), max(k, l)))
+
+    def kappa(k: int, l: int) -> sympy.Expr:
+        return c[f"k{k}{k}"] if k == l else entry({}, ROTATED_CONDUCTIVITY, (min(k, l), max(k, l)))
 
     out = {"u1": exact.u1, "u2": exact.u2, "phi": phi, "theta": theta}
     if dimension == 3:
         out["u3"] = exact.u3
     sig = {I: sum((C(I, J) * eps[J] for J in present), sympy.Integer(0))
            + sum((e(k, I) * d(phi, k) for k in axes), sympy.Integer(0)) - m(I) * theta for I in present}
-    D = {k: sum((e(k, I) * eps[I] for I in present), sympy.Integer(0)) - c[f"b{k}{k}"] * d(phi, k)
-         - c[f"p{k}"] * theta for k in axes}
-    q = {k: -c[f"k{k}{k}"] * d(theta, k) for k in axes}
+    D = {k: sum((e(k, I) * eps[I] for I in present), sympy.Integer(0))
+         - sum((b(k, l) * d(phi, l) for l in axes), sympy.Integer(0)) - c[f"p{k}"] * theta for k in axes}
+    q = {k: -sum((kappa(k, l) * d(theta, l) for l in axes), sympy.Integer(0)) for k in axes}
     for I in present:
         out["sig%d%d" % VOIGT_PAIRS[I]] = sig[I]
     for k in axes:
@@ -212,31 +234,37 @@ def scene_macros(scene, layout: Layout) -> dict[str, str]:
     if not texts:
         return {}
     exact = parse_exact(texts, scene.dimension)
-    return macros(derive(exact, material_constants(scene.material, layout), scene.effects, scene.dimension),
-                  scene.dimension)
+    constants = material_constants(scene.material, layout, tuple(scene.poling.macros().items()), scene.dimension)
+    return macros(derive(exact, constants, scene.effects, scene.dimension), scene.dimension)
 
 
-def material_constants(material: str, layout: Layout) -> dict[str, float]:
+def material_constants(material: str, layout: Layout, poling: tuple[tuple[str, str], ...] = (),
+                       dimension: int = 2) -> dict[str, float]:
+    """`poling`: the scene's poling macros (harness/poling.py), empty for the default axis."""
     return dict(_constants(str(layout.material_file(material).resolve()),
-                           str(layout.material_reduction_file().resolve())))
+                           str(layout.material_reduction_file().resolve()), poling, dimension))
 
 
 @functools.cache
-def _constants(material_file: str, reduction_file: str) -> tuple[tuple[str, float], ...]:
-    """Include the material as a run does, print the plane-strain constants to 17 digits."""
+def _constants(material_file: str, reduction_file: str, poling: tuple[tuple[str, str], ...] = (),
+               dimension: int = 2) -> tuple[tuple[str, float], ...]:
+    """Include the material as a run does, print the plane-strain constants to 17 digits (and,
+    for a rotated poling, the rotated set's other entries)."""
     includes = [material_file] + [reduction_file] * Path(reduction_file).is_file()
-    lines = [f'include "{p}"' for p in includes] + ["cout.precision(17);"]
-    lines += [f'cout << "{k} " << {k} << endl;' for k in CONSTANTS + CONSTANTS_3D]
+    names = CONSTANTS + CONSTANTS_3D + ROTATED * bool(poling)
+    lines = [f"macro DIMENSION {dimension} //"] * bool(poling) + [f"macro {k}() ({v}) //" for k, v in poling]
+    lines += [f'include "{p}"' for p in includes] + ["cout.precision(17);"]
+    lines += [f'cout << "{k} " << {k} << endl;' for k in names]
     with tempfile.TemporaryDirectory(prefix="ff-material-") as tmp:
         script = Path(tmp) / "constants.edp"
         script.write_text("\n".join(lines) + "\n")
         outcome = freefem.invoke(freefem.command(script, []), Path(tmp), timeout_s=60)
         text = (Path(tmp) / "stdout.txt").read_text()
     values = dict(line.split() for line in text.splitlines() if len(line.split()) == 2)
-    if outcome.returncode != 0 or set(CONSTANTS + CONSTANTS_3D) - set(values):
+    if outcome.returncode != 0 or set(names) - set(values):
         raise RunError(f"FreeFEM could not print the constants of {material_file}: "
                        f"{freefem.error_detail(text) or 'missing constants'}")
-    return tuple((k, float(values[k])) for k in CONSTANTS + CONSTANTS_3D)
+    return tuple((k, float(values[k])) for k in names)
 
 
 def numeric(derived: Mapping[str, sympy.Expr]) -> dict[str, Callable[[np.ndarray, np.ndarray], np.ndarray]]:

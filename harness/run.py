@@ -249,7 +249,7 @@ def solver_inputs(
     On several ranks (run.ranks > 1) the text is the distributed scheme's, unless `sequential`.
     The coarser meshes the options name (a multigrid's levels, a coarse space) are made only
     with `make_meshes`: the cache key needs their names alone."""
-    macros = {**manufactured_macros(scene, layout), **scene.reference_macros()}
+    macros = {**manufactured_macros(scene, layout), **scene.reference_macros(), **scene.poling.macros()}
     parallel = launcher.ranks_of(scene).parallel and not sequential
     petsc = scene.linear_solver == "petsc"
     text = main_script(scene.material, scene.effects, layout, element=scene.element, macros=macros,

@@ -13,7 +13,8 @@ from typing import Any, Iterable
 from harness.errors import SceneError
 from harness.petsc_plugin import default_options, factorising, multigrid
 from harness.box import Box, parse_box
-from harness.gmsh_geometry import GmshGeometry, check_poling, parse_gmsh
+from harness.gmsh_geometry import GmshGeometry, parse_gmsh
+from harness.poling import Poling, parse_poling
 from harness.schema import EFFECTS, REQUIRED, SCHEMA, SOLVER_SECTIONS, Key, effect_of, geometry_keys, unread_by_law
 from harness.sections import sections_of
 from harness.segments import Geometry, parse_geometry
@@ -48,6 +49,11 @@ class Scene:
     @property
     def material(self) -> str:
         return self.sections.scene.material
+
+    @property
+    def poling(self) -> Poling:
+        """The material's axis 3 in the scene's coordinates (checked when the scene loads)."""
+        return parse_poling(self.sections.scene.poling_axis, self.dimension)
 
     @property
     def effects(self) -> tuple[str, ...]:
@@ -130,6 +136,8 @@ class Scene:
         so that editing levels or the band does not invalidate cached runs."""
         return {
             "material": self.material,
+            # Only a rotated poling joins the key: the default one leaves earlier keys as they were.
+            **({} if self.poling.is_default else {"poling_axis": list(self.poling.axis)}),
             "initial_guess": self.initial_guess,
             "element": self.element,
             "linear_solver": self.linear_solver,
@@ -168,7 +176,7 @@ def load_scene(path: Path, overrides: Iterable[str] = ()) -> Scene:
             apply_override(raw, item)
         table, warnings = resolve(raw)
         geometry = parse_any_geometry(table, path.parent)
-        check_poling(table["scene"]["poling_axis"], getattr(geometry, "dimension", 2))
+        parse_poling(table["scene"]["poling_axis"], getattr(geometry, "dimension", 2))
         check_expect(table["expect"])
     except SceneError as exc:
         raise SceneError(f"{path}: {exc}") from None  # every case-file error names the file

@@ -159,8 +159,8 @@ SCHEMA: dict[str, dict[str, Key]] = {
         "coarsest_guess": Key(str, "zero", one_of("zero", "pressed")),
         "initial_mesh": Key(str, ""),
         "initial_state": Key(str, ""),
-        # The material's axis 3 (poling): blank or the default axis only, y in 2D and z in 3D,
-        # named or as a unit vector (harness/gmsh_geometry.py check_poling).
+        # The material's axis 3 (poling): blank for the default (y in 2D, z in 3D), a named
+        # axis with a sign ("x", "-z") or a vector, in-plane in 2D (harness/poling.py).
         "poling_axis": Key(object, ""),
     },
     "geometry": {
