@@ -13,50 +13,33 @@ R_u = int sigma:eps(v) - int f0.v gives f0 = -div sigma; R_phi = -int D.grad(xi)
 int phi0 xi gives phi0 = div D; R_theta = -int q.grad(eta) - int vartheta0 eta gives
 vartheta0 = div q. An effect a scene leaves off removes its field and couplings (phi* = 0
 and E = 0 without piezoelectricity, theta* = 0 without heat, P = 0 without pyroelectricity).
-The material constants are asked of FreeFEM itself (the material file and, when present,
-its plane-strain reduction freefem/material.idp), so nothing here repeats them.
+The material constants are asked of FreeFEM itself (harness/material_constants.py), so
+nothing here repeats them.
 """
 
 from __future__ import annotations
 
-import functools
 import math
-import tempfile
 from dataclasses import dataclass
-from pathlib import Path
 from typing import Any, Callable, Mapping
 
 import numpy as np
 import sympy
 
-from harness import freefem
-from harness.errors import RunError, SceneError
+from harness.errors import SceneError
 from harness.layout import Layout
+from harness.material_constants import (CONSTANTS, CONSTANTS_3D, ROTATED, ROTATED_CONDUCTIVITY, ROTATED_ELASTIC,
+                                        ROTATED_PERMITTIVITY, ROTATED_PIEZO, ROTATED_STRESS_TEMPERATURE,
+                                        material_constants)
 
 X, Y, Z = sympy.symbols("x y z", real=True)
 EXACT_KEYS = ("u1", "u2", "u3", "phi", "theta")  # u3: a box scene's (3D) only
-CONSTANTS = ("f11", "f13", "f33", "f44", "e31", "e33", "e15", "b11", "b33",
-             "m11", "m33", "p1", "p3", "k11", "k33")
-# The out-of-plane constants of the 3D law (freefem/constitutive.idp, material.idp).
-CONSTANTS_3D = ("fC12", "fC22", "fC23", "f2323", "f1212", "e24", "e32", "b22", "m22", "p2", "k22")
 # The law of a ceramic poled along 3 (class 6mm) in Voigt form (order 11 22 33 23 13 12,
 # engineering shears), as freefem/constitutive.idp writes it: C_IJ, e_kI by constant name.
 VOIGT_PAIRS = {1: (1, 1), 2: (2, 2), 3: (3, 3), 4: (2, 3), 5: (1, 3), 6: (1, 2)}
 ELASTIC = {(1, 1): "f11", (1, 2): "fC12", (1, 3): "f13", (2, 2): "fC22", (2, 3): "fC23", (3, 3): "f33",
            (4, 4): "f2323", (5, 5): "f44", (6, 6): "f1212"}
 PIEZO = {(1, 5): "e15", (2, 4): "e24", (3, 1): "e31", (3, 2): "e32", (3, 3): "e33"}
-# The other entries of a set rotated to a scene's poling axis (freefem/material.idp, "Poling"):
-# C_IJ and e_kI as above, beta_kl and k_kl (k < l), m_I; present only for a rotated poling.
-ROTATED_ELASTIC = {(1, 4): "gC14", (1, 5): "gC15", (1, 6): "gC16", (2, 4): "gC24", (2, 5): "gC25", (2, 6): "gC26",
-                   (3, 4): "gC34", (3, 5): "gC35", (3, 6): "gC36", (4, 5): "gC45", (4, 6): "gC46", (5, 6): "gC56"}
-ROTATED_PIEZO = {(1, 1): "ge11", (1, 2): "ge12", (1, 3): "ge13", (1, 4): "ge14", (1, 6): "ge16",
-                 (2, 1): "ge21", (2, 2): "ge22", (2, 3): "ge23", (2, 5): "ge25", (2, 6): "ge26",
-                 (3, 4): "ge34", (3, 5): "ge35", (3, 6): "ge36"}
-ROTATED_PERMITTIVITY = {(1, 2): "gb12", (1, 3): "gb13", (2, 3): "gb23"}
-ROTATED_CONDUCTIVITY = {(1, 2): "gk12", (1, 3): "gk13", (2, 3): "gk23"}
-ROTATED_STRESS_TEMPERATURE = {4: "gm4", 5: "gm5", 6: "gm6"}
-ROTATED = (tuple(ROTATED_ELASTIC.values()) + tuple(ROTATED_PIEZO.values()) + tuple(ROTATED_PERMITTIVITY.values())
-           + tuple(ROTATED_CONDUCTIVITY.values()) + tuple(ROTATED_STRESS_TEMPERATURE.values()))
 # Material axis -> coordinate: axis 3 (poling) is y in 2D (plane strain in the 1-3 plane), z in 3D.
 AXES = {2: {1: X, 3: Y}, 3: {1: X, 2: Y, 3: Z}}
 # The contract with freefem/ (macro name -> derived quantity), all in x, y and SI units.
@@ -233,38 +216,11 @@ def scene_macros(scene, layout: Layout) -> dict[str, str]:
     texts = scene.manufactured
     if not texts:
         return {}
+    if scene.regions:
+        raise SceneError("a manufactured solution takes one material (scene.material), not [scene.materials]")
     exact = parse_exact(texts, scene.dimension)
     constants = material_constants(scene.material, layout, tuple(scene.poling.macros().items()), scene.dimension)
     return macros(derive(exact, constants, scene.effects, scene.dimension), scene.dimension)
-
-
-def material_constants(material: str, layout: Layout, poling: tuple[tuple[str, str], ...] = (),
-                       dimension: int = 2) -> dict[str, float]:
-    """`poling`: the scene's poling macros (harness/poling.py), empty for the default axis."""
-    return dict(_constants(str(layout.material_file(material).resolve()),
-                           str(layout.material_reduction_file().resolve()), poling, dimension))
-
-
-@functools.cache
-def _constants(material_file: str, reduction_file: str, poling: tuple[tuple[str, str], ...] = (),
-               dimension: int = 2) -> tuple[tuple[str, float], ...]:
-    """Include the material as a run does, print the plane-strain constants to 17 digits (and,
-    for a rotated poling, the rotated set's other entries)."""
-    includes = [material_file] + [reduction_file] * Path(reduction_file).is_file()
-    names = CONSTANTS + CONSTANTS_3D + ROTATED * bool(poling)
-    lines = [f"macro DIMENSION {dimension} //"] * bool(poling) + [f"macro {k}() ({v}) //" for k, v in poling]
-    lines += [f'include "{p}"' for p in includes] + ["cout.precision(17);"]
-    lines += [f'cout << "{k} " << {k} << endl;' for k in names]
-    with tempfile.TemporaryDirectory(prefix="ff-material-") as tmp:
-        script = Path(tmp) / "constants.edp"
-        script.write_text("\n".join(lines) + "\n")
-        outcome = freefem.invoke(freefem.command(script, []), Path(tmp), timeout_s=60)
-        text = (Path(tmp) / "stdout.txt").read_text()
-    values = dict(line.split() for line in text.splitlines() if len(line.split()) == 2)
-    if outcome.returncode != 0 or set(names) - set(values):
-        raise RunError(f"FreeFEM could not print the constants of {material_file}: "
-                       f"{freefem.error_detail(text) or 'missing constants'}")
-    return tuple((k, float(values[k])) for k in names)
 
 
 def numeric(derived: Mapping[str, sympy.Expr]) -> dict[str, Callable[[np.ndarray, np.ndarray], np.ndarray]]:

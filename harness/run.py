@@ -24,6 +24,7 @@ from harness.mesh import coarser_meshes, family_levels
 from harness.record import RunRecord, read_run_json, write_run_json
 from harness.tresca import grip_warning
 from harness.scene import Scene
+from harness.regions import region_definitions
 from harness.script import main_script
 
 
@@ -69,10 +70,11 @@ class RunResult:
 
 def check_solver_files(scene: Scene, layout: Layout) -> None:
     """Fail before meshing or running when the case names a material the repo lacks."""
-    wanted = layout.material_file(scene.material)
-    if not wanted.is_file():
-        available = ", ".join(sorted(p.stem for p in wanted.parent.glob("*.idp"))) or "none"
-        raise SceneError(f"unknown material {scene.material!r}: no {wanted} (available: {available})")
+    for material in [scene.material] + [m for _, m in scene.regions]:
+        wanted = layout.material_file(material)
+        if not wanted.is_file():
+            available = ", ".join(sorted(p.stem for p in wanted.parent.glob("*.idp"))) or "none"
+            raise SceneError(f"unknown material {material!r}: no {wanted} (available: {available})")
     if not layout.scheme_file().is_file():
         raise RunError(f"no solver script {layout.scheme_file()}")
 
@@ -252,7 +254,10 @@ def solver_inputs(
     macros = {**manufactured_macros(scene, layout), **scene.reference_macros(), **scene.poling.macros()}
     parallel = launcher.ranks_of(scene).parallel and not sequential
     petsc = scene.linear_solver == "petsc"
+    definitions = region_definitions(scene.regions, layout, tuple(scene.poling.macros().items()),
+                                     scene.dimension) if scene.regions else []
     text = main_script(scene.material, scene.effects, layout, element=scene.element, macros=macros,
+                       definitions=definitions,
                        linear_solver=scene.linear_solver, petsc_plugin=petsc_plugin.library() if petsc else None,
                        scheme=layout.freefem / launcher.PARALLEL_SCHEME if parallel else None,
                        dimension=scene.dimension)

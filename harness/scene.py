@@ -3,6 +3,7 @@
 from __future__ import annotations
 
 import copy
+import dataclasses
 import hashlib
 import math
 import tomllib
@@ -15,6 +16,7 @@ from harness.petsc_plugin import default_options, factorising, multigrid
 from harness.box import Box, parse_box
 from harness.gmsh_geometry import GmshGeometry, parse_gmsh
 from harness.poling import Poling, parse_poling
+from harness.regions import check_regions
 from harness.schema import EFFECTS, REQUIRED, SCHEMA, SOLVER_SECTIONS, Key, effect_of, geometry_keys, unread_by_law
 from harness.sections import sections_of
 from harness.segments import Geometry, parse_geometry
@@ -48,7 +50,15 @@ class Scene:
 
     @property
     def material(self) -> str:
-        return self.sections.scene.material
+        """The one material, or with regions the first region's (its constants set the
+        scheme's scales, freefem/scaling.idp)."""
+        return self.sections.scene.material or self.regions[0][1]
+
+    @property
+    def regions(self) -> tuple[tuple[str, str], ...]:
+        """(region, material) in the mesh's label order; empty for a one-material scene."""
+        materials = self.sections.scene.materials
+        return tuple((name, materials[name]) for name in getattr(self.geometry, "regions", ()))
 
     @property
     def poling(self) -> Poling:
@@ -136,6 +146,7 @@ class Scene:
         so that editing levels or the band does not invalidate cached runs."""
         return {
             "material": self.material,
+            **({"materials": [list(r) for r in self.regions]} if self.regions else {}),
             # Only a rotated poling joins the key: the default one leaves earlier keys as they were.
             **({} if self.poling.is_default else {"poling_axis": list(self.poling.axis)}),
             "initial_guess": self.initial_guess,
@@ -177,6 +188,9 @@ def load_scene(path: Path, overrides: Iterable[str] = ()) -> Scene:
         table, warnings = resolve(raw)
         geometry = parse_any_geometry(table, path.parent)
         parse_poling(table["scene"]["poling_axis"], getattr(geometry, "dimension", 2))
+        regions = check_regions(table["scene"]["materials"], table["scene"]["material"], geometry)
+        if regions:
+            geometry = dataclasses.replace(geometry, regions=regions)
         check_expect(table["expect"])
     except SceneError as exc:
         raise SceneError(f"{path}: {exc}") from None  # every case-file error names the file

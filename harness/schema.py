@@ -150,7 +150,11 @@ SCHEMA: dict[str, dict[str, Key]] = {
     "scene": {
         "name": Key(str, check=safe_name),
         "description": Key(str, ""),
-        "material": Key(str, check=safe_name),
+        # One material for the whole body, or blank with [scene.materials] (harness/regions.py).
+        "material": Key(str, "", check=lambda v: safe_name(v) if v else None),
+        # [scene.materials]: a gmsh scene's named body groups (surfaces in 2D, volumes in 3D)
+        # = material, one entry per group; the scene.material shorthand left blank.
+        "materials": Key(object, {}),
         "effects": Key(list, list(EFFECTS), effect_list),
         # zero | pressed: Newton's start on every level; coarser: each level starts from
         # the solution of the next coarser level (the coarsest from `coarsest_guess`),

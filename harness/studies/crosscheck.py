@@ -111,6 +111,8 @@ def plans_of(case: Path, overrides: list[str], branches: list[str] | None,
     law = base.sections.contact.friction_law if "friction" in base.effects else "tresca"
     if law != "tresca":  # the peer's friction is Tresca's ball (peer_getfem/terms.py)
         raise SceneError(f"{case}: the GetFEM peer solves Tresca friction only, not contact.friction_law = {law!r}")
+    if base.regions:  # the peer takes one material file (harness/peer.py)
+        raise SceneError(f"{case}: the GetFEM peer solves one material, not the regions of [scene.materials]")
     if not base.poling.is_default:  # the peer reads the material file's tensors as they are (harness/peer.py)
         raise SceneError(f"{case}: the GetFEM peer solves the default poling axis only, not scene.poling_axis = "
                          f"{base.sections.scene.poling_axis!r}")
