@@ -219,7 +219,7 @@ def scene_macros(scene, layout: Layout) -> dict[str, str]:
     if scene.regions:
         raise SceneError("a manufactured solution takes one material (scene.material), not [scene.materials]")
     exact = parse_exact(texts, scene.dimension)
-    constants = material_constants(scene.material, layout, tuple(scene.poling.macros().items()), scene.dimension)
+    constants = material_constants(scene.material, layout, tuple(scene.poling_macros().items()), scene.dimension)
     return macros(derive(exact, constants, scene.effects, scene.dimension), scene.dimension)
 
 

@@ -33,10 +33,12 @@ class Poling:
         """Along +y (2D) or +z (3D): the material files' own axes, nothing to rotate."""
         return self.axis == default_axis(self.dimension)
 
-    def macros(self) -> dict[str, str]:
+    def macros(self, always: bool = False) -> dict[str, str]:
         """FreeFEM's compile-time macros polingX, polingY(, polingZ); none for the default
-        axis, so that a default run compiles the very law it compiled before."""
-        if self.is_default:
+        axis, so that a default run compiles the very law it compiled before, unless
+        `always` (material regions of which another is rotated: every region's set then
+        has the rotated entries, zero for this one)."""
+        if self.is_default and not always:
             return {}
         return {f"poling{name.upper()}": repr(value) for name, value in zip(AXES, self.axis)}
 

@@ -12,13 +12,35 @@ through material.idp's `mat(...)`.
 
 from __future__ import annotations
 
+from dataclasses import dataclass
 from typing import Any
 
 from harness.errors import SceneError
 from harness.gmsh_geometry import GmshGeometry
 from harness.layout import Layout
 from harness.material_constants import CONSTANTS, CONSTANTS_3D, ROTATED, material_constants
+from harness.poling import Poling, parse_poling
 from harness.schema import safe_name
+
+ENTRY_KEYS = ("material", "poling_axis")
+
+
+@dataclass(frozen=True)
+class Region:
+    name: str       # the physical group of the .geo file
+    material: str
+    poling: Poling  # its own poling_axis, or the scene's
+
+
+def regions_of(materials: dict[str, Any], names: tuple[str, ...], scene_poling: Any, dimension: int) -> tuple[Region, ...]:
+    """Each region's entry: a material name, or a table {material = ..., poling_axis = ...}."""
+    out = []
+    for name in names:
+        entry = materials[name]
+        material = entry if isinstance(entry, str) else entry["material"]
+        axis = entry.get("poling_axis", scene_poling) if isinstance(entry, dict) else scene_poling
+        out.append(Region(name, material, parse_poling(axis, dimension)))
+    return tuple(out)
 
 
 def check_regions(materials: Any, material: str, geometry: Any) -> tuple[str, ...]:
@@ -38,6 +60,16 @@ def check_regions(materials: Any, material: str, geometry: Any) -> tuple[str, ..
     kind = "surface" if geometry.dimension == 2 else "volume"
     bodies = dict(geometry.bodies)
     for name, value in materials.items():
+        if isinstance(value, dict):
+            unknown = [k for k in value if k not in ENTRY_KEYS]
+            if unknown or "material" not in value:
+                raise SceneError(f"scene.materials.{name} = {value!r}: a region's table has a material and may have "
+                                 f"a poling_axis ({'unknown key ' + repr(unknown[0]) if unknown else 'no material'})")
+            try:
+                parse_poling(value.get("poling_axis", ""), geometry.dimension)
+            except SceneError as exc:
+                raise SceneError(f"scene.materials.{name}: {exc}") from None
+            value = value["material"]
         if not isinstance(value, str) or safe_name(value):
             raise SceneError(f"scene.materials.{name} = {value!r} must be a material name (letters, digits, - _ .)")
         if name not in bodies:
@@ -59,12 +91,18 @@ def check_regions(materials: Any, material: str, geometry: Any) -> tuple[str, ..
     return tuple(materials)
 
 
-def region_definitions(regions: tuple[tuple[str, str], ...], layout: Layout, poling: tuple[tuple[str, str], ...],
-                       dimension: int) -> list[str]:
+def any_rotated(regions: tuple[Region, ...]) -> bool:
+    return any(not r.poling.is_default for r in regions)
+
+
+def region_definitions(regions: tuple[Region, ...], layout: Layout, dimension: int) -> list[str]:
     """FreeFEM lines for main.edp: the switch REGIONS and, expanded by freefem/regions.idp once
-    the mesh is read, each constant as a P0 field of the cells' region labels."""
-    names = CONSTANTS + CONSTANTS_3D + ROTATED * bool(poling)
-    values = [material_constants(material, layout, poling, dimension) for _, material in regions]
+    the mesh is read, each constant as a P0 field of the cells' region labels. When a region
+    is rotated, every region's set carries the rotated entries (zero on the default axis)."""
+    rotated = any_rotated(regions)
+    names = CONSTANTS + CONSTANTS_3D + ROTATED * rotated
+    values = [material_constants(r.material, layout, tuple(r.poling.macros(always=rotated).items()), dimension)
+              for r in regions]
     fields = []
     for name in names:
         # One term per region; a cell's own term is its value, the others 0 * value = 0.

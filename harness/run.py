@@ -70,7 +70,7 @@ class RunResult:
 
 def check_solver_files(scene: Scene, layout: Layout) -> None:
     """Fail before meshing or running when the case names a material the repo lacks."""
-    for material in [scene.material] + [m for _, m in scene.regions]:
+    for material in [scene.material] + [r.material for r in scene.regions]:
         wanted = layout.material_file(material)
         if not wanted.is_file():
             available = ", ".join(sorted(p.stem for p in wanted.parent.glob("*.idp"))) or "none"
@@ -251,11 +251,10 @@ def solver_inputs(
     On several ranks (run.ranks > 1) the text is the distributed scheme's, unless `sequential`.
     The coarser meshes the options name (a multigrid's levels, a coarse space) are made only
     with `make_meshes`: the cache key needs their names alone."""
-    macros = {**manufactured_macros(scene, layout), **scene.reference_macros(), **scene.poling.macros()}
+    macros = {**manufactured_macros(scene, layout), **scene.reference_macros(), **scene.poling_macros()}
     parallel = launcher.ranks_of(scene).parallel and not sequential
     petsc = scene.linear_solver == "petsc"
-    definitions = region_definitions(scene.regions, layout, tuple(scene.poling.macros().items()),
-                                     scene.dimension) if scene.regions else []
+    definitions = region_definitions(scene.regions, layout, scene.dimension) if scene.regions else []
     text = main_script(scene.material, scene.effects, layout, element=scene.element, macros=macros,
                        definitions=definitions,
                        linear_solver=scene.linear_solver, petsc_plugin=petsc_plugin.library() if petsc else None,

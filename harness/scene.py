@@ -15,8 +15,8 @@ from harness.errors import SceneError
 from harness.petsc_plugin import default_options, factorising, multigrid
 from harness.box import Box, parse_box
 from harness.gmsh_geometry import GmshGeometry, parse_gmsh
-from harness.poling import Poling, parse_poling
-from harness.regions import check_regions
+from harness.poling import Poling, default_axis, parse_poling
+from harness.regions import Region, any_rotated, check_regions, regions_of
 from harness.schema import EFFECTS, REQUIRED, SCHEMA, SOLVER_SECTIONS, Key, effect_of, geometry_keys, unread_by_law
 from harness.sections import sections_of
 from harness.segments import Geometry, parse_geometry
@@ -52,13 +52,21 @@ class Scene:
     def material(self) -> str:
         """The one material, or with regions the first region's (its constants set the
         scheme's scales, freefem/scaling.idp)."""
-        return self.sections.scene.material or self.regions[0][1]
+        return self.sections.scene.material or self.regions[0].material
 
     @property
-    def regions(self) -> tuple[tuple[str, str], ...]:
-        """(region, material) in the mesh's label order; empty for a one-material scene."""
-        materials = self.sections.scene.materials
-        return tuple((name, materials[name]) for name in getattr(self.geometry, "regions", ()))
+    def regions(self) -> tuple[Region, ...]:
+        """The material regions in the mesh's label order; empty for a one-material scene."""
+        return regions_of(self.sections.scene.materials, getattr(self.geometry, "regions", ()),
+                          self.sections.scene.poling_axis, self.dimension)
+
+    def poling_macros(self) -> dict[str, str]:
+        """The poling macros of main.edp: the scene's axis for one material; with regions the
+        default axis written out when any region is rotated (the law then has the rotated
+        terms, each region's values come from harness/regions.py), else none."""
+        if not self.regions:
+            return self.poling.macros()
+        return Poling(default_axis(self.dimension)).macros(always=True) if any_rotated(self.regions) else {}
 
     @property
     def poling(self) -> Poling:
@@ -146,7 +154,7 @@ class Scene:
         so that editing levels or the band does not invalidate cached runs."""
         return {
             "material": self.material,
-            **({"materials": [list(r) for r in self.regions]} if self.regions else {}),
+            **({"materials": [[r.name, r.material, list(r.poling.axis)] for r in self.regions]} if self.regions else {}),
             # Only a rotated poling joins the key: the default one leaves earlier keys as they were.
             **({} if self.poling.is_default else {"poling_axis": list(self.poling.axis)}),
             "initial_guess": self.initial_guess,

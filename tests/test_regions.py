@@ -172,3 +172,42 @@ def test_two_layers_in_series_in_3d(tmp_path, n):
     # Unstructured nodes: solution.vtu's single-precision z (relative 6e-8) bounds the comparison.
     assert u[:, 2] == pytest.approx(exact, abs=1e-6 * np.abs(exact).max())
     assert np.abs(u[:, :2]).max() <= 1e-10 * np.abs(exact).max()
+
+
+# PZT-5H (freefem/materials/PZT-5H.idp): e33 [C/m^2].
+E33 = 23.3
+
+
+@pytest.mark.parametrize("n", [4, 8])
+def test_two_layers_poled_oppositely_strain_oppositely(tmp_path, n):
+    run = solve(DATA / "opposed.toml", n, tmp_path)
+    u, phi = read_state(tmp_path / "opposed" / f"n{n}" / "state.txt")[:2]
+    y = grid(run.fields.points[:, 1], n)
+    V, t1 = 100.0, 0.5
+    strain = -E33 * V / C33["PZT-5H"]  # the lower layer's, poled along +y; the upper's is -strain
+    exact = np.where(y <= t1, strain * y, strain * t1 - strain * (y - t1))
+    u = u.reshape(-1, 2)
+    # P1-exact fields: round-off only (measured below 1e-12 of the largest value).
+    assert phi == pytest.approx(V * y, abs=1e-10 * V)
+    assert u[:, 1] == pytest.approx(exact, abs=1e-10 * np.abs(exact).max())
+    assert np.abs(u[:, 0]).max() <= 1e-10 * np.abs(exact).max()
+
+
+def test_every_region_poled_the_other_way_is_the_body_poled_the_other_way(tmp_path):
+    """Both layers poled -y through their own entries, against one material poled -y."""
+    regions = 'scene.materials={lower = {material = "PZT-5H", poling_axis = "-y"}, upper = {material = "PZT-5H", poling_axis = "-y"}}'
+    solve(DATA / "opposed.toml", 4, tmp_path / "two", regions)
+    solve(DATA / "opposed.toml", 4, tmp_path / "one", "scene.materials={}", 'scene.material="PZT-5H"',
+          'scene.poling_axis="-y"')
+    two = read_state(tmp_path / "two" / "opposed" / "n4" / "state.txt")
+    one = read_state(tmp_path / "one" / "opposed" / "n4" / "state.txt")
+    for a, b in zip(one, two):
+        assert b == pytest.approx(a, abs=1e-12 * np.abs(a).max())
+        assert np.abs(a).max() > 0
+
+
+def test_a_bad_region_poling_is_named(tmp_path, capsys):
+    code = main(["solve", str(DATA / "opposed.toml"), "--n", "4", "--results", str(tmp_path), "--set",
+                 'scene.materials={lower = "PZT-5H", upper = {material = "PZT-5H", poling_axis = [0, 0]}}'])
+    err = capsys.readouterr().err.strip().splitlines()
+    assert code == 2 and len(err) == 1 and "scene.materials.upper: scene.poling_axis = [0, 0] has zero length" in err[0], err
