@@ -43,6 +43,13 @@ class GmshGeometry:
     # The coarsest mesh's vertices, edges, (3D: faces,) cells: the guards' node counts.
     coarsest_counts: tuple[int, ...] = ()
     coarsest_min_cell: float = math.inf  # its smallest triangle's area (2D) [m^2]
+    # The file's named physical surfaces (2D) or volumes (3D) with their entities, and the
+    # entities of the body in none of them.
+    bodies: tuple[tuple[str, tuple[int, ...]], ...] = ()
+    unnamed_bodies: tuple[int, ...] = ()
+    # The material regions a scene maps (harness/regions.py), in label order: the cells of
+    # regions[i] carry the label i + 1 in the mesh; none: every cell carries 1.
+    regions: tuple[str, ...] = ()
 
     @property
     def role_of_name(self) -> dict[str, str]:
@@ -155,8 +162,8 @@ def parse_gmsh(table: dict[str, Any], case_dir: Path, levels: list[int], effects
         raise SceneError("geometry.roles: the contact part is empty (no name maps to role contact) but effect "
                          "'contact' is on")
     coarsest = table["coarsest"] or min(levels)
-    found, bounds, contact, counts, smallest = read_geo(file, dimension, coarsest,
-                                                        [n for n, r in roles.items() if r == "contact"])
+    found, bounds, contact, counts, smallest, bodies, unnamed = read_geo(
+        file, dimension, coarsest, [n for n, r in roles.items() if r == "contact"])
     facet = "curve" if dimension == 2 else "surface"
     for name in found:
         if name not in roles:
@@ -169,14 +176,17 @@ def parse_gmsh(table: dict[str, Any], case_dir: Path, levels: list[int], effects
         raise SceneError(f"{file.name}: the contact part is empty (no {facet} in it)")
     return GmshGeometry(file=file, dimension=dimension, roles=tuple(roles.items()), levels=table["levels"],
                         coarsest=coarsest, bounds=bounds, contact=contact, coarsest_counts=counts,
-                        coarsest_min_cell=smallest)
+                        coarsest_min_cell=smallest, bodies=bodies, unnamed_bodies=unnamed)
 
 
 def read_geo(file: Path, dimension: int, coarsest: int, contact_names: list[str]) -> tuple[
-        dict[str, list[int]], tuple[float, ...], tuple[tuple[tuple[float, ...], ...], ...], tuple[int, ...], float]:
+        dict[str, list[int]], tuple[float, ...], tuple[tuple[tuple[float, ...], ...], ...], tuple[int, ...], float,
+        tuple[tuple[str, tuple[int, ...]], ...], tuple[int, ...]]:
     """The names of the file's physical groups of dimension d - 1 (with their entities),
     its bounding box, the contact entities' facets, the coarsest level's mesh's counts
-    of vertices, edges, (faces,) cells (h = 1/coarsest) and (2D) its smallest triangle's area."""
+    of vertices, edges, (faces,) cells (h = 1/coarsest), (2D) its smallest triangle's area,
+    its named physical groups of dimension d (the body's regions) with their entities, and
+    the body's entities in none of them."""
     with session():
         try:
             gmsh.open(str(file))
@@ -196,6 +206,12 @@ def read_geo(file: Path, dimension: int, coarsest: int, contact_names: list[str]
             name = gmsh.model.getPhysicalName(dim, tag) or str(tag)
             if entities:
                 found.setdefault(name, []).extend(entities)
+        bodies: dict[str, list[int]] = {}
+        for dim, tag in gmsh.model.getPhysicalGroups(dimension):
+            name = gmsh.model.getPhysicalName(dim, tag) or str(tag)
+            bodies.setdefault(name, []).extend(int(e) for e in gmsh.model.getEntitiesForPhysicalGroup(dim, tag))
+        named = {e for group in bodies.values() for e in group}
+        unnamed = tuple(int(tag) for _, tag in gmsh.model.getEntities(dimension) if int(tag) not in named)
         bounds = tuple(float(b) for b in gmsh.model.getBoundingBox(-1, -1))
         entities = [e for name in contact_names for e in found.get(name, [])]
         gmsh.option.setNumber("Mesh.MeshSizeMax", 1.0 / coarsest)
@@ -206,7 +222,7 @@ def read_geo(file: Path, dimension: int, coarsest: int, contact_names: list[str]
         counts = simplex_counts(dimension)
         smallest = smallest_triangle() if dimension == 2 else math.inf
         contact = contact_facets(dimension, entities) if entities else ()
-    return found, bounds, contact, counts, smallest
+    return found, bounds, contact, counts, smallest, tuple((k, tuple(v)) for k, v in bodies.items()), unnamed
 
 
 def smallest_triangle() -> float:
@@ -253,22 +269,3 @@ def contact_facets(dimension: int, entities: list[int]) -> tuple[tuple[tuple[flo
             for cell in np.asarray(nodes, dtype=int).reshape(-1, per)[:, :dimension]:
                 out.append(tuple(tuple(float(x) for x in where[int(t)]) for t in cell))
     return tuple(out)
-
-
-def check_poling(value: Any, dimension: int) -> None:
-    """The poling axis (the material's axis 3) a scene may name: the default one only (y in
-    2D, z in 3D), as a named axis or a unit vector. A rotated poling would need the material
-    tensors rotated in freefem/constitutive.idp; until then it is refused, and a user rotates
-    the drawing instead."""
-    default = "y" if dimension == 2 else "z"
-    vector = [0.0] * dimension
-    vector[dimension - 1] = 1.0
-    if value in ("", default):
-        return
-    if isinstance(value, list) and len(value) == dimension and all(
-            isinstance(x, (int, float)) and not isinstance(x, bool) for x in value):
-        norm = math.sqrt(sum(x * x for x in value))
-        if norm > 0 and all(abs(x / norm - v) <= 1e-12 for x, v in zip(value, vector)):
-            return
-    raise SceneError(f"scene.poling_axis = {value!r}: only the default axis is supported ({default!r} or "
-                     f"{vector} in {dimension}D); rotate the geometry so that the poling runs along {default}")

@@ -25,6 +25,7 @@ from harness.mesh import coarser_meshes, family_levels
 from harness.record import RunRecord, read_run_json, write_run_json
 from harness.tresca import grip_warning
 from harness.scene import Scene
+from harness.regions import region_definitions
 from harness.script import main_script
 
 
@@ -75,10 +76,11 @@ def check_solver_files(scene: Scene, layout: Layout) -> None:
         raise HarnessError(f"--freefem {layout.freefem}: the FreeFEM scripts directory does not exist")
     if not layout.scheme_file().is_file():
         raise HarnessError(f"--freefem {layout.freefem}: not a FreeFEM scripts directory (no {layout.scheme_file().name})")
-    wanted = layout.material_file(scene.material)
-    if not wanted.is_file():
-        available = ", ".join(sorted(p.stem for p in wanted.parent.glob("*.idp"))) or "none"
-        raise SceneError(f"unknown material {scene.material!r}: no {wanted} (available: {available})")
+    for material in [scene.material] + [r.material for r in scene.regions]:
+        wanted = layout.material_file(material)
+        if not wanted.is_file():
+            available = ", ".join(sorted(p.stem for p in wanted.parent.glob("*.idp"))) or "none"
+            raise SceneError(f"unknown material {material!r}: no {wanted} (available: {available})")
 
 
 def run_level(
@@ -254,10 +256,13 @@ def solver_inputs(
     On several ranks (run.ranks > 1) the text is the distributed scheme's, unless `sequential`.
     The coarser meshes the options name (a multigrid's levels, a coarse space) are made only
     with `make_meshes`: the cache key needs their names alone."""
-    macros = {**manufactured_macros(scene, layout), **scene.reference_macros(), **floating_macros(scene.geometry)}
+    macros = {**manufactured_macros(scene, layout), **scene.reference_macros(), **scene.poling_macros(),
+              **floating_macros(scene.geometry)}
     parallel = launcher.ranks_of(scene).parallel and not sequential
     petsc = scene.linear_solver == "petsc"
+    definitions = region_definitions(scene.regions, layout, scene.dimension) if scene.regions else []
     text = main_script(scene.material, scene.effects, layout, element=scene.element, macros=macros,
+                       definitions=definitions,
                        linear_solver=scene.linear_solver, petsc_plugin=petsc_plugin.library() if petsc else None,
                        scheme=layout.freefem / launcher.PARALLEL_SCHEME if parallel else None,
                        dimension=scene.dimension)

@@ -154,7 +154,11 @@ SCHEMA: dict[str, dict[str, Key]] = {
     "scene": {
         "name": Key(str, check=safe_name),
         "description": Key(str, ""),
-        "material": Key(str, check=safe_name),
+        # One material for the whole body, or blank with [scene.materials] (harness/regions.py).
+        "material": Key(str, "", check=lambda v: safe_name(v) if v else None),
+        # [scene.materials]: a gmsh scene's named body groups (surfaces in 2D, volumes in 3D)
+        # = material, one entry per group; the scene.material shorthand left blank.
+        "materials": Key(object, {}),
         "effects": Key(list, list(EFFECTS), effect_list),
         # zero | pressed: Newton's start on every level; coarser: each level starts from
         # the solution of the next coarser level (the coarsest from `coarsest_guess`),
@@ -163,8 +167,8 @@ SCHEMA: dict[str, dict[str, Key]] = {
         "coarsest_guess": Key(str, "zero", one_of("zero", "pressed")),
         "initial_mesh": Key(str, ""),
         "initial_state": Key(str, ""),
-        # The material's axis 3 (poling): blank or the default axis only, y in 2D and z in 3D,
-        # named or as a unit vector (harness/gmsh_geometry.py check_poling).
+        # The material's axis 3 (poling): blank for the default (y in 2D, z in 3D), a named
+        # axis with a sign ("x", "-z") or a vector, in-plane in 2D (harness/poling.py).
         "poling_axis": Key(object, ""),
     },
     "geometry": {

@@ -114,6 +114,11 @@ def plans_of(case: Path, overrides: list[str], branches: list[str] | None,
         raise SceneError(f"{case}: the GetFEM peer solves Tresca friction only, not contact.friction_law = {law!r}")
     if floating_macros(base.geometry):  # the peer has no floating electrode: unsupported, not a disagreement
         raise SceneError(f"{case}: the GetFEM peer has no floating electrode (a part with the role 'floating')")
+    if base.regions:  # the peer takes one material file (harness/peer.py)
+        raise SceneError(f"{case}: the GetFEM peer solves one material, not the regions of [scene.materials]")
+    if not base.poling.is_default:  # the peer reads the material file's tensors as they are (harness/peer.py)
+        raise SceneError(f"{case}: the GetFEM peer solves the default poling axis only, not scene.poling_axis = "
+                         f"{base.sections.scene.poling_axis!r}")
     own = base.sections.scene.coarsest_guess if base.initial_guess == "coarser" else base.initial_guess
     out = []
     for start in branches or [own]:
