@@ -138,7 +138,9 @@ def test_a_chain_runs_its_coarse_levels_on_as_many_ranks_as_they_take(tmp_path, 
     four = solve(CASES / "paper.toml", 4, results, "run.ranks=4")
     two = read_run_json(results / "paper" / "n2")
     assert (two.ranks, four.record.ranks) == (3, 4) and two.converged and four.record.converged
-    assert "warning" not in capsys.readouterr().err  # the level asked for got all its ranks
+    # the level asked for got all its ranks: no warning of fewer ranks (the paper's Tresca
+    # warning may be there)
+    assert not [line for line in capsys.readouterr().err.splitlines() if "warning" in line and "rank" in line]
 
 
 @pytest.mark.skipif(bool(mpi_missing()), reason=mpi_missing() or "-")
