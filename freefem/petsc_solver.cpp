@@ -24,6 +24,7 @@
 // script can exit with a code of the project's contract (freefem/contract.idp).
 #include <petscksp.h>
 #include <chrono>
+#include <ctime>
 #include <algorithm>
 #include <cctype>
 #include <cmath>
@@ -63,6 +64,9 @@ PetscErrorCode start() {
 double now() {
   return std::chrono::duration<double>(std::chrono::steady_clock::now().time_since_epoch()).count();
 }
+// CPU seconds of this process, FreeFEM's clock(): the run's profile (freefem/profile.idp)
+// adds the plugin's pieces to the script's in one currency.
+double cpu() { return (double)std::clock() / CLOCKS_PER_SEC; }
 
 struct Context {
   KSP ksp = nullptr;
@@ -84,6 +88,7 @@ struct Context {
   // statistics
   PetscInt lastIts = 0, totalIts = 0, setups = 0, solves = 0;
   double lastResidual = 0, lastSetup = 0, lastSolve = 0, totalSetup = 0, totalSolve = 0;
+  double cpuOperator = 0, cpuSetup = 0, cpuSolve = 0;   // CPU seconds of the last call's pieces
   int lastReason = 0;
 };
 std::vector<Context *> contexts;
@@ -510,6 +515,7 @@ long solve(long const &id, Matrice_Creuse<double> *const &A, KN<double> *const &
            double const &rtol, long const &reuse) {
   Context *c = context(id);
   if (!c) return fail(PETSC_ERR_ARG_OUTOFRANGE, "solve");
+  double c0 = cpu();
   if (reuse < 2 || !c->op) {
     Mat next;
     TRY(toPetsc(A, &next), "matrix");
@@ -519,6 +525,7 @@ long solve(long const &id, Matrice_Creuse<double> *const &A, KN<double> *const &
     TRY(MatDestroy(&c->op), "matrix");
     c->op = next;
   }
+  c->cpuOperator = cpu() - c0;
   return krylov(c, b, x, rtol, reuse);
 }
 
@@ -528,7 +535,9 @@ long solveSum(long const &id, Matrice_Creuse<double> *const &K, Matrice_Creuse<d
               KN<double> *const &b, KN<double> *const &x, double const &rtol, long const &reuse) {
   Context *c = context(id);
   if (!c) return fail(PETSC_ERR_ARG_OUTOFRANGE, "solve");
+  double c0 = cpu();
   if (reuse < 2 || !c->op) TRY(sumOperator(*c, K, T), "matrix K + T");
+  c->cpuOperator = cpu() - c0;
   return krylov(c, b, x, rtol, reuse);
 }
 
@@ -561,23 +570,25 @@ long krylov(Context *c, KN<double> *b, KN<double> *x, double rtol, long reuse) {
   }
   TRY(KSPSetReusePreconditioner(c->ksp, rebuild ? PETSC_FALSE : PETSC_TRUE), "reuse");
   TRY(KSPSetTolerances(c->ksp, rtol, 0.0, PETSC_DEFAULT, PETSC_DEFAULT), "tolerances");
-  double t0 = now();
+  double t0 = now(), c0 = cpu();
   if (rebuild) {
     TRY(KSPSetUp(c->ksp), "set-up");
     PC pc;
     TRY(KSPGetPC(c->ksp, &pc), "set-up");
     TRY(PCSetUp(pc), "preconditioner set-up");
     c->lastSetup = now() - t0;
+    c->cpuSetup = cpu() - c0;
     c->totalSetup += c->lastSetup;
     ++c->setups;
   } else {
     c->lastSetup = 0;
+    c->cpuSetup = 0;
   }
   Vec vb, vx;
   TRY(VecCreateSeqWithArray(PETSC_COMM_SELF, 1, n, (PetscScalar *)(double *)*b, &vb), "vector");
   TRY(VecCreateSeqWithArray(PETSC_COMM_SELF, 1, n, (PetscScalar *)(double *)*x, &vx), "vector");
   for (PetscInt i : c->dirichlet) (*b)[i] = 0;
-  double t1 = now();
+  double t1 = now(), c1 = cpu();
   TRY(KSPSolve(c->ksp, vb, vx), "solve");
   if (!c->checkedOptions) {
     // Checked once, after the first solve: by then PETSc has read every option it will.
@@ -593,6 +604,7 @@ long krylov(Context *c, KN<double> *b, KN<double> *x, double rtol, long reuse) {
     }
   }
   c->lastSolve = now() - t1;
+  c->cpuSolve = cpu() - c1;
   c->totalSolve += c->lastSolve;
   KSPConvergedReason reason;
   TRY(KSPGetConvergedReason(c->ksp, &reason), "solve");
@@ -616,12 +628,14 @@ long krylov(Context *c, KN<double> *b, KN<double> *x, double rtol, long reuse) {
 }
 
 // stats = [iterations, true relative residual, converged reason, set-up s, solve s,
-//          total iterations, total set-up s, total solve s, set-ups, solves] (at least 10 entries)
+//          total iterations, total set-up s, total solve s, set-ups, solves,
+//          the last call's CPU s of forming its operator, set-up, solve] (resized to 13 entries)
 long stats(long const &id, KN<double> *const &out) {
   Context *c = context(id);
   if (!c) return fail(PETSC_ERR_ARG_OUTOFRANGE, "stats");
   double values[] = {(double)c->lastIts, c->lastResidual, (double)c->lastReason, c->lastSetup, c->lastSolve,
-                     (double)c->totalIts, c->totalSetup, c->totalSolve, (double)c->setups, (double)c->solves};
+                     (double)c->totalIts, c->totalSetup, c->totalSolve, (double)c->setups, (double)c->solves,
+                     c->cpuOperator, c->cpuSetup, c->cpuSolve};
   long count = sizeof(values) / sizeof(values[0]);
   if (out->N() < count) out->resize(count);
   for (long k = 0; k < count; ++k) (*out)[k] = values[k];
