@@ -76,7 +76,7 @@ class RunRecord:
     total_s: float | None = None
     ready_s: float | None = None
     initial_guess_s: float | None = None
-    # each piece of the run: [CPU seconds, calls, peak MB when it last ended] (freefem/profile.idp)
+    # each piece of the run: [CPU seconds, calls, MB it raised the peak by] (freefem/profile.idp)
     profile: dict[str, list[float]] | None = None
     max_abs_u: float | None = None
     contact_force: float | None = None

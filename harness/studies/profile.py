@@ -3,11 +3,12 @@
     python -m harness profile [CASE] [--levels 16,32] [--repeats 3] [--out results/solvers/profile3d.csv]
 
 Each level is run `--repeats` times alone from the chain below it (solved once, cached), as
-the solver table's levels are. Per run FreeFEM records each piece's CPU seconds and the peak
-memory when it ended (run.json's profile, freefem/profile.idp); the table holds, per level and
-piece, the median seconds, its share of the run's summed CPU seconds (a share survives a
-loaded machine better than seconds), the calls and the median peak, and the machine's load
-average while the level ran. Written as CSV and Markdown, beside each other.
+the solver table's levels are. Per run FreeFEM records each piece's CPU seconds and by how
+much it raised the peak resident memory (run.json's profile, freefem/profile.idp: the raises
+sum to the run's peak); the table holds, per level and piece, the median seconds, its share
+of the run's summed CPU seconds (a share survives a loaded machine better than seconds), the
+calls and the median raise, and the machine's load average while the level ran. Written as
+CSV and Markdown, beside each other.
 """
 
 from __future__ import annotations
@@ -39,7 +40,7 @@ TOTAL, WALL, PEAK = "all pieces (CPU)", "process wall", "process peak"
 
 def level_rows(n: int, records: list[RunRecord], loads: list[float]) -> list[dict[str, Any]]:
     """The table's rows of one level from its repeats: per piece the median seconds, share,
-    calls and peak; then the totals. A piece some repeat lacks counts 0 s there."""
+    calls and peak raise; then the totals. A piece some repeat lacks counts 0 there."""
     profiles = [r.profile or {} for r in records]
     names = list(dict.fromkeys(name for p in profiles for name in p))
     totals = [sum(v[0] for v in p.values()) for p in profiles]
@@ -50,27 +51,28 @@ def level_rows(n: int, records: list[RunRecord], loads: list[float]) -> list[dic
         rows.append({**common, "piece": name, "seconds": statistics.median(seconds),
                      "share": statistics.median(s / max(t, 1e-12) for s, t in zip(seconds, totals)),
                      "calls": int(max(p.get(name, [0, 0, 0])[1] for p in profiles)),
-                     "peak_mb": statistics.median(p[name][2] for p in profiles if name in p)})
+                     "raised_mb": statistics.median(p.get(name, [0.0, 0, 0.0])[2] for p in profiles)})
     rows.append({**common, "piece": TOTAL, "seconds": statistics.median(totals), "share": 1.0, "calls": 1,
-                 "peak_mb": statistics.median(float(r.peak_rss_mb or 0) for r in records)})
+                 "raised_mb": statistics.median(sum(v[2] for v in p.values()) for p in profiles)})
     rows.append({**common, "piece": WALL, "seconds": statistics.median(float(r.wall_s or 0) for r in records),
-                 "share": float("nan"), "calls": 1, "peak_mb": float("nan")})
+                 "share": float("nan"), "calls": 1, "raised_mb": float("nan")})
     rows.append({**common, "piece": PEAK, "seconds": float("nan"), "share": float("nan"), "calls": 1,
-                 "peak_mb": statistics.median(float(r.peak_rss_mb or 0) for r in records)})
+                 "raised_mb": statistics.median(float(r.peak_rss_mb or 0) for r in records)})
     return rows
 
 
 def markdown(table: pd.DataFrame, case: str) -> str:
-    """One column pair (seconds, share) and the peak per level, a row per piece."""
+    """Per level the seconds, share and peak raise, a row per piece."""
     levels = sorted(table["n"].unique())
     lines = [f"# Profile of {case} (python -m harness profile)", "",
              "Medians of the repeats of each level, each run alone from the chain below it. CPU seconds "
              "per piece (FreeFEM's clock(), the PETSc plugin's std::clock), their share of all pieces, and "
-             "the peak resident memory (VmHWM, MiB) when the piece last ended.", ""]
+             "the MiB by which each piece raised the peak resident memory (VmHWM; the raises sum to the peak).",
+             ""]
     header = ["piece"]
     for n in levels:
         sub = table[table["n"] == n].iloc[0]
-        header += [f"1/{n} s", f"1/{n} share", f"1/{n} peak MiB"]
+        header += [f"1/{n} s", f"1/{n} share", f"1/{n} MiB raised"]
         lines.append(f"- h = 1/{n}: {int(sub['dofs']):,} dofs, {int(sub['repeats'])} repeats, "
                      f"load average {sub['load_average']:.1f}")
     lines.append("")
@@ -85,7 +87,7 @@ def markdown(table: pd.DataFrame, case: str) -> str:
             r = hit.iloc[0]
             row += ["" if pd.isna(r["seconds"]) else f"{r['seconds']:.2f}",
                     "" if pd.isna(r["share"]) else f"{100 * r['share']:.1f} %",
-                    "" if pd.isna(r["peak_mb"]) else f"{r['peak_mb']:,.0f}"]
+                    "" if pd.isna(r["raised_mb"]) else f"{r['raised_mb']:,.0f}"]
         rows.append(row)
     return "\n".join(lines) + "\n" + markdown_table(header, rows)
 
