@@ -173,6 +173,14 @@ multigrid: $(STAMP) freefem
 	$(PY) -m harness solvers --points paper3d:32 --only petsc-mg --results results/solvers/h32
 	$(PY) -m harness solvers --points paper:512 --only petsc-mg --repeats 1 --results results/solvers/h512
 
+# Where a 3D solve's time and memory go (docs/solvers.md, "Profile"): the paper's block at
+# h = 1/16, three runs alone from the chain below, each piece's CPU seconds, share and peak,
+# into results/solvers/profile3d.csv and .md (~2 min). With h = 1/32 (~10 min, ~4 GB):
+#   make profile3d PROFILE_FLAGS="--levels 16,32"
+.PHONY: profile3d
+profile3d: $(STAMP) freefem
+	$(PY) -m harness profile cases/paper3d.toml --levels 16 $(PROFILE_FLAGS)
+
 # Past one machine (issue 15): the paper scene solved on 1 and 2 MPI ranks, in 2D and 3D
 # (time, Krylov iterations, per-rank memory, agreement), and the stress suite in this
 # process against local Dask clusters of 1 and 2 workers, each started and warmed before

@@ -29,6 +29,7 @@ STUDIES: dict[str, str] = {
     "cost": "what accuracy costs: the cost-accuracy frontier of a scene",
     "bench": "repeated timings (finest level, sweep, whole process), medians and spread",
     "solvers": "the solver table: every linear solver on the same levels, medians",
+    "profile": "where a solve's time and memory go, piece by piece, medians and shares",
     "crosscheck": "FreeFEM against the GetFEM peer, level by level, field by field",
     "scale": "past one machine: a solve on 1 and 2 MPI ranks, a study on one worker and on Dask",
 }

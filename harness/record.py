@@ -79,6 +79,8 @@ class RunRecord:
     total_s: float | None = None
     ready_s: float | None = None
     initial_guess_s: float | None = None
+    # each piece of the run: [CPU seconds, calls, MB it raised the peak by] (freefem/profile.idp)
+    profile: dict[str, list[float]] | None = None
     max_abs_u: float | None = None
     contact_force: float | None = None
     friction_force: float | None = None  # the magnitude of friction_force_vector
