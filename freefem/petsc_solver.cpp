@@ -24,6 +24,9 @@
 // script can exit with a code of the project's contract (freefem/contract.idp).
 #include <petscksp.h>
 #include <chrono>
+#include <ctime>
+#include <fstream>
+#include <cstdlib>
 #include <algorithm>
 #include <cctype>
 #include <cmath>
@@ -63,12 +66,24 @@ PetscErrorCode start() {
 double now() {
   return std::chrono::duration<double>(std::chrono::steady_clock::now().time_since_epoch()).count();
 }
+// CPU seconds of this process, FreeFEM's clock(): the run's profile (freefem/profile.idp)
+// adds the plugin's pieces to the script's in one currency.
+double cpu() { return (double)std::clock() / CLOCKS_PER_SEC; }
+// The process's peak resident memory so far [MB]: VmHWM, as freefem/memory.idp reads it
+// (getrusage's ru_maxrss would count the harness's forked Python before exec). -1 where
+// there is no /proc.
+double peakMb() {
+  std::ifstream status("/proc/self/status");
+  std::string line;
+  while (std::getline(status, line))
+    if (line.compare(0, 6, "VmHWM:") == 0) return std::atof(line.c_str() + 6) / 1024.0;
+  return -1;
+}
 
 struct Context {
   KSP ksp = nullptr;
   Mat op = nullptr;        // the operator of the last solve
   Mat pre = nullptr;       // the matrix the preconditioner was built from
-  Mat baseU = nullptr;     // solveSum: K in the pattern of K + T
   std::string prefix;      // of this context's options in PETSc's database
   std::vector<std::string> names;
   std::vector<IS> fields;
@@ -84,6 +99,8 @@ struct Context {
   // statistics
   PetscInt lastIts = 0, totalIts = 0, setups = 0, solves = 0;
   double lastResidual = 0, lastSetup = 0, lastSolve = 0, totalSetup = 0, totalSolve = 0;
+  double cpuOperator = 0, cpuSetup = 0, cpuSolve = 0;   // CPU seconds of the last call's pieces
+  double peakOperator = 0, peakSetup = 0, peakSolve = 0;   // the peak [MB] after each of them
   int lastReason = 0;
 };
 std::vector<Context *> contexts;
@@ -435,37 +452,78 @@ PetscErrorCode unusedOptions(const Context &c, std::string *unused) {
   return 0;
 }
 
-// K's pattern extended by T's (values K's), built once per T pattern; the operator of each
-// step is a copy of it plus T. FreeFEM then never forms K + T, and K is copied once.
-PetscErrorCode sumPattern(Context &c, Matrice_Creuse<double> *K, Matrice_Creuse<double> *T) {
-  MatriceMorse<double> *k = K->A ? dynamic_cast<MatriceMorse<double> *>(&*K->A) : nullptr;
-  MatriceMorse<double> *t = T->A ? dynamic_cast<MatriceMorse<double> *>(&*T->A) : nullptr;
-  if (!k || !t || k->half || t->half || k->n != t->n || k->m != t->m) {
+// K and T as FreeFEM's sparse matrices, rows in CSR form with sorted columns.
+PetscErrorCode morsePair(Matrice_Creuse<double> *K, Matrice_Creuse<double> *T, MatriceMorse<double> **k,
+                         MatriceMorse<double> **t) {
+  *k = K->A ? dynamic_cast<MatriceMorse<double> *>(&*K->A) : nullptr;
+  *t = T->A ? dynamic_cast<MatriceMorse<double> *>(&*T->A) : nullptr;
+  if (!*k || !*t || (*k)->half || (*t)->half || (*k)->n != (*t)->n || (*k)->m != (*t)->m) {
     lastMessage = "K and T must be full sparse matrices of one size";
     return PETSC_ERR_ARG_WRONG;
   }
-  k->CSR();
-  t->CSR();
-  // Row by row, the union of the two sorted column lists, with K's values (0 where only T has one).
-  std::vector<PetscInt> rows(1, 0), cols;
-  std::vector<PetscScalar> values;
-  for (int i = 0; i < k->n; ++i) {
+  (*k)->CSR();
+  (*t)->CSR();
+  return 0;
+}
+
+// The operator's pattern: K's extended by T's, built once per T pattern, values zero. Row by
+// row into an exactly preallocated matrix: no CSR copy of K is ever held beside it (a copy of
+// K's values and columns, a CSR matrix made from them and its duplicate were three copies of K
+// at the first step, and the last one stayed for every step: issue 30's profile).
+PetscErrorCode sumPattern(Context &c, MatriceMorse<double> *k, MatriceMorse<double> *t) {
+  auto rowUnion = [&](int i, std::vector<PetscInt> *cols) {
+    cols->clear();
     int a = k->p[i], ae = k->p[i + 1], b = t->p[i], be = t->p[i + 1];
     while (a < ae || b < be) {
-      if (b >= be || (a < ae && k->j[a] < t->j[b])) { cols.push_back(k->j[a]); values.push_back(k->aij[a]); ++a; }
-      else if (a >= ae || t->j[b] < k->j[a]) { cols.push_back(t->j[b]); values.push_back(0.0); ++b; }
-      else { cols.push_back(k->j[a]); values.push_back(k->aij[a]); ++a; ++b; }
+      if (b >= be || (a < ae && k->j[a] < t->j[b])) cols->push_back(k->j[a++]);
+      else if (a >= ae || t->j[b] < k->j[a]) cols->push_back(t->j[b++]);
+      else { cols->push_back(k->j[a]); ++a; ++b; }
     }
-    rows.push_back((PetscInt)cols.size());
+  };
+  std::vector<PetscInt> counts(k->n), cols;
+  size_t widest = 0;
+  for (int i = 0; i < k->n; ++i) {
+    rowUnion(i, &cols);
+    counts[i] = (PetscInt)cols.size();
+    widest = std::max(widest, cols.size());
   }
-  PetscCall(MatDestroy(&c.baseU));
-  PetscCall(MatCreate(PETSC_COMM_SELF, &c.baseU));
-  PetscCall(MatSetSizes(c.baseU, k->n, k->n, k->n, k->n));
-  PetscCall(MatSetType(c.baseU, MATSEQAIJ));
-  PetscCall(MatSeqAIJSetPreallocationCSR(c.baseU, rows.data(), cols.data(), values.data()));
-  PetscCall(dirichletRows(c.baseU, &c.dirichlet));
+  std::vector<PetscScalar> zeros(widest, 0.0);
   PetscCall(MatDestroy(&c.op));
-  return MatDuplicate(c.baseU, MAT_DO_NOT_COPY_VALUES, &c.op);
+  PetscCall(MatCreate(PETSC_COMM_SELF, &c.op));
+  PetscCall(MatSetSizes(c.op, k->n, k->n, k->n, k->n));
+  PetscCall(MatSetType(c.op, MATSEQAIJ));
+  PetscCall(MatSeqAIJSetPreallocation(c.op, 0, counts.data()));
+  for (PetscInt i = 0; i < k->n; ++i) {
+    rowUnion((int)i, &cols);
+    PetscCall(MatSetValues(c.op, 1, &i, (PetscInt)cols.size(), cols.data(), zeros.data(), INSERT_VALUES));
+  }
+  PetscCall(MatAssemblyBegin(c.op, MAT_FINAL_ASSEMBLY));
+  return MatAssemblyEnd(c.op, MAT_FINAL_ASSEMBLY);
+}
+
+// op's values := K's, zero where only T has an entry (each step starts from K again, in
+// place). *fits is false when an entry of K has no place in op's pattern.
+PetscErrorCode fillFromK(Mat op, MatriceMorse<double> *k, bool *fits) {
+  PetscInt n;
+  const PetscInt *ia, *ja;
+  PetscBool done;
+  PetscCall(MatGetRowIJ(op, 0, PETSC_FALSE, PETSC_FALSE, &n, &ia, &ja, &done));
+  *fits = done && n == k->n;
+  if (*fits) {
+    PetscScalar *a;
+    PetscCall(MatSeqAIJGetArray(op, &a));
+    for (PetscInt i = 0; i < n && *fits; ++i) {
+      PetscInt p = ia[i], pe = ia[i + 1];
+      for (int q = k->p[i]; q < k->p[i + 1] && *fits; ++q) {
+        while (p < pe && ja[p] < k->j[q]) a[p++] = 0.0;
+        *fits = p < pe && ja[p] == k->j[q];
+        if (*fits) a[p++] = k->aij[q];
+      }
+      while (p < pe) a[p++] = 0.0;
+    }
+    PetscCall(MatSeqAIJRestoreArray(op, &a));
+  }
+  return MatRestoreRowIJ(op, 0, PETSC_FALSE, PETSC_FALSE, &n, &ia, &ja, &done);
 }
 
 // Whether every entry of t has a place in a's pattern.
@@ -487,14 +545,26 @@ PetscErrorCode within(Mat t, Mat a, bool *inside) {
   return 0;
 }
 
-// The operator K + T with Dirichlet rows and columns as identity ones.
+// The operator K + T with Dirichlet rows and columns as identity ones, in the one PETSc matrix
+// op: K's values written into it from FreeFEM's K, then T added (T lives on Gamma_3's rows).
+// FreeFEM never forms K + T, and PETSc holds no copy of K beside op.
 PetscErrorCode sumOperator(Context &c, Matrice_Creuse<double> *K, Matrice_Creuse<double> *T) {
+  MatriceMorse<double> *k, *tm;
+  PetscCall(morsePair(K, T, &k, &tm));
   Mat t;
   PetscCall(toPetsc(T, &t));
-  bool inside = false;
-  if (c.baseU) PetscCall(within(t, c.baseU, &inside));
-  if (!inside) PetscCall(sumPattern(c, K, T));
-  PetscCall(MatCopy(c.baseU, c.op, SAME_NONZERO_PATTERN));
+  bool inside = false, fits = false;
+  if (c.op) PetscCall(within(t, c.op, &inside));
+  if (inside) PetscCall(fillFromK(c.op, k, &fits));
+  if (!fits) {
+    PetscCall(sumPattern(c, k, tm));
+    PetscCall(fillFromK(c.op, k, &fits));
+    if (!fits) {
+      lastMessage = "K's entries do not fit the pattern of K + T";
+      return PETSC_ERR_PLIB;
+    }
+    PetscCall(dirichletRows(c.op, &c.dirichlet));
+  }
   PetscCall(MatAXPY(c.op, 1.0, t, SUBSET_NONZERO_PATTERN));
   PetscCall(MatDestroy(&t));
   return MatZeroRowsColumns(c.op, (PetscInt)c.dirichlet.size(), c.dirichlet.data(), 1.0, nullptr, nullptr);
@@ -510,6 +580,7 @@ long solve(long const &id, Matrice_Creuse<double> *const &A, KN<double> *const &
            double const &rtol, long const &reuse) {
   Context *c = context(id);
   if (!c) return fail(PETSC_ERR_ARG_OUTOFRANGE, "solve");
+  double c0 = cpu();
   if (reuse < 2 || !c->op) {
     Mat next;
     TRY(toPetsc(A, &next), "matrix");
@@ -519,6 +590,8 @@ long solve(long const &id, Matrice_Creuse<double> *const &A, KN<double> *const &
     TRY(MatDestroy(&c->op), "matrix");
     c->op = next;
   }
+  c->cpuOperator = cpu() - c0;
+  c->peakOperator = peakMb();
   return krylov(c, b, x, rtol, reuse);
 }
 
@@ -528,7 +601,10 @@ long solveSum(long const &id, Matrice_Creuse<double> *const &K, Matrice_Creuse<d
               KN<double> *const &b, KN<double> *const &x, double const &rtol, long const &reuse) {
   Context *c = context(id);
   if (!c) return fail(PETSC_ERR_ARG_OUTOFRANGE, "solve");
+  double c0 = cpu();
   if (reuse < 2 || !c->op) TRY(sumOperator(*c, K, T), "matrix K + T");
+  c->cpuOperator = cpu() - c0;
+  c->peakOperator = peakMb();
   return krylov(c, b, x, rtol, reuse);
 }
 
@@ -561,23 +637,27 @@ long krylov(Context *c, KN<double> *b, KN<double> *x, double rtol, long reuse) {
   }
   TRY(KSPSetReusePreconditioner(c->ksp, rebuild ? PETSC_FALSE : PETSC_TRUE), "reuse");
   TRY(KSPSetTolerances(c->ksp, rtol, 0.0, PETSC_DEFAULT, PETSC_DEFAULT), "tolerances");
-  double t0 = now();
+  double t0 = now(), c0 = cpu();
   if (rebuild) {
     TRY(KSPSetUp(c->ksp), "set-up");
     PC pc;
     TRY(KSPGetPC(c->ksp, &pc), "set-up");
     TRY(PCSetUp(pc), "preconditioner set-up");
     c->lastSetup = now() - t0;
+    c->cpuSetup = cpu() - c0;
+    c->peakSetup = peakMb();
     c->totalSetup += c->lastSetup;
     ++c->setups;
   } else {
     c->lastSetup = 0;
+    c->cpuSetup = 0;
+    c->peakSetup = peakMb();
   }
   Vec vb, vx;
   TRY(VecCreateSeqWithArray(PETSC_COMM_SELF, 1, n, (PetscScalar *)(double *)*b, &vb), "vector");
   TRY(VecCreateSeqWithArray(PETSC_COMM_SELF, 1, n, (PetscScalar *)(double *)*x, &vx), "vector");
   for (PetscInt i : c->dirichlet) (*b)[i] = 0;
-  double t1 = now();
+  double t1 = now(), c1 = cpu();
   TRY(KSPSolve(c->ksp, vb, vx), "solve");
   if (!c->checkedOptions) {
     // Checked once, after the first solve: by then PETSc has read every option it will.
@@ -593,6 +673,8 @@ long krylov(Context *c, KN<double> *b, KN<double> *x, double rtol, long reuse) {
     }
   }
   c->lastSolve = now() - t1;
+  c->cpuSolve = cpu() - c1;
+  c->peakSolve = peakMb();
   c->totalSolve += c->lastSolve;
   KSPConvergedReason reason;
   TRY(KSPGetConvergedReason(c->ksp, &reason), "solve");
@@ -616,12 +698,15 @@ long krylov(Context *c, KN<double> *b, KN<double> *x, double rtol, long reuse) {
 }
 
 // stats = [iterations, true relative residual, converged reason, set-up s, solve s,
-//          total iterations, total set-up s, total solve s, set-ups, solves] (at least 10 entries)
+//          total iterations, total set-up s, total solve s, set-ups, solves,
+//          the last call's CPU s of forming its operator, set-up, solve, and the peak resident
+//          memory in MB after each of these three] (resized to 16 entries)
 long stats(long const &id, KN<double> *const &out) {
   Context *c = context(id);
   if (!c) return fail(PETSC_ERR_ARG_OUTOFRANGE, "stats");
   double values[] = {(double)c->lastIts, c->lastResidual, (double)c->lastReason, c->lastSetup, c->lastSolve,
-                     (double)c->totalIts, c->totalSetup, c->totalSolve, (double)c->setups, (double)c->solves};
+                     (double)c->totalIts, c->totalSetup, c->totalSolve, (double)c->setups, (double)c->solves,
+                     c->cpuOperator, c->cpuSetup, c->cpuSolve, c->peakOperator, c->peakSetup, c->peakSolve};
   long count = sizeof(values) / sizeof(values[0]);
   if (out->N() < count) out->resize(count);
   for (long k = 0; k < count; ++k) (*out)[k] = values[k];
@@ -655,7 +740,6 @@ long destroy(long const &id) {
   KSPDestroy(&c->ksp);
   MatDestroy(&c->op);
   MatDestroy(&c->pre);
-  MatDestroy(&c->baseU);
   for (IS &is : c->fields) ISDestroy(&is);
   MatNullSpaceDestroy(&c->rigid);
   ISDestroy(&c->zone);

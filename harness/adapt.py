@@ -1,4 +1,4 @@
-"""The adaptive loop in 2D: SOLVE -> ESTIMATE -> MARK -> REFINE (docs/adaptivity.md), the
+"""The adaptive loop, 2D and 3D: SOLVE -> ESTIMATE -> MARK -> REFINE (docs/adaptivity.md), the
 library of `python -m harness adapt`.
 
 - SOLVE: one run on the step's mesh, warm-started from the step before (the point-located
@@ -6,11 +6,13 @@ library of `python -m harness adapt`.
 - ESTIMATE: the run's recovery estimate (freefem/estimator.idp), per cell its combined
   relative indicator `error_indicator` in solution.vtu;
 - MARK: Dörfler's bulk criterion on it (bisection.dorfler);
-- REFINE: newest-vertex bisection with closure (harness/bisection.py), the boundary roles
-  carried to the halves of every cut boundary edge.
+- REFINE: newest-vertex bisection of triangles (harness/bisection.py) or longest-edge
+  bisection of tetrahedra (harness/tet_bisection.py), each with its closure, the boundary
+  roles carried to the halves of every cut boundary facet.
 
 The true error of every step is measured against an overkill reference: the last step's
-mesh bisected uniformly twice (each cell into four), solved warm from the last step. All
+mesh bisected uniformly (2D: two rounds, each cell into four or more; 3D: three rounds, each tetrahedron
+into eight or more), solved warm from the last step. All
 adapted meshes are nested in it, so each step's error is computed exactly
 (norms.error_norms). The case's uniform levels are measured against the same reference
 (their meshes are not nested in it: there the transfer is the nodal interpolant).
@@ -24,7 +26,7 @@ from typing import Callable
 
 import numpy as np
 
-from harness import bisection
+from harness import bisection, tet_bisection
 from harness.engine import InlineMeshes, Progress, run_levels, runs_of
 from harness.errors import FieldsError, SceneError
 from harness.fields import Fields, read_fields
@@ -54,33 +56,39 @@ class Adaptation:
     reference_mesh: Path
 
 
+# The refinement of each dimension: start, refine, uniform, oriented; and the uniform
+# bisection rounds that make the reference four (2D) or eight or more (3D) times finer.
+REFINERS = {2: bisection, 3: tet_bisection}
+REFERENCE_ROUNDS = {2: 2, 3: 3}
+CELL_TYPES = {2: ("triangle", "line"), 3: ("tetra", "triangle")}
+
+
 def check_adaptable(scene: Scene) -> None:
-    if scene.dimension != 2:
-        raise SceneError(f"{scene.source}: adaptive refinement is built for 2D scenes only (this one is "
-                         f"{scene.dimension}D); run a uniform study with `convergence`")
     if scene.initial_guess != "coarser":
         raise SceneError(f"{scene.source}: an adaptive study warm-starts each step from the one before; "
                          f"set scene.initial_guess = \"coarser\" (it is {scene.initial_guess!r})")
 
 
-def read_start(path: Path) -> bisection.BisectionMesh:
+def read_start(path: Path, dimension: int):  # noqa: ANN201 (the dimension's mesh type)
     """The first step's mesh: the case's coarsest level as the harness wrote it (MSH 2.2,
     role labels in gmsh:physical)."""
     import meshio  # here: its import is the slow part of start-up
 
+    cell_type, facet_type = CELL_TYPES[dimension]
     mesh = meshio.read(path)
-    triangles = np.vstack([b.data for b in mesh.cells if b.type == "triangle"])
-    lines, labels = [], []
+    cells = np.vstack([b.data for b in mesh.cells if b.type == cell_type])
+    facets, labels = [], []
     for block, physical in zip(mesh.cells, mesh.cell_data["gmsh:physical"]):
-        if block.type == "line":
-            lines.append(block.data)
+        if block.type == facet_type:
+            facets.append(block.data)
             labels.append(physical)
-    return bisection.start(mesh.points, triangles, np.vstack(lines), np.concatenate(labels))
+    return REFINERS[dimension].start(mesh.points[:, :dimension], cells, np.vstack(facets), np.concatenate(labels))
 
 
-def write_step(mesh: bisection.BisectionMesh, path: Path) -> dict[str, float]:
+def write_step(mesh, path: Path) -> dict[str, float]:  # noqa: ANN001 (either dimension's mesh)
     """The step's mesh as MSH 2.2 (cells positive, as FreeFEM needs), and its quality."""
-    cells = bisection.oriented(mesh.points, mesh.cells)
+    dimension = mesh.cells.shape[1] - 1
+    cells = REFINERS[dimension].oriented(mesh.points, mesh.cells)
     q = quality(mesh.points, cells)
     path.parent.mkdir(parents=True, exist_ok=True)
     partial = path.with_name(f".{path.name}.partial")
@@ -89,30 +97,27 @@ def write_step(mesh: bisection.BisectionMesh, path: Path) -> dict[str, float]:
     return q
 
 
-def indicator_on(mesh: bisection.BisectionMesh, solution: Path) -> np.ndarray:
+def indicator_on(mesh, solution: Path) -> np.ndarray:  # noqa: ANN001 (either dimension's mesh)
     """The run's `error_indicator`, one value per cell of `mesh` in its order (matched by
     the cell's nodes: FreeFEM numbers the nodes as the file does)."""
     import meshio
 
+    cell_type = CELL_TYPES[mesh.cells.shape[1] - 1][0]
     vtu = meshio.read(solution)
-    blocks = [(b.data, d) for b, d in zip(vtu.cells, vtu.cell_data["error_indicator"]) if b.type == "triangle"]
+    blocks = [(b.data, d) for b, d in zip(vtu.cells, vtu.cell_data["error_indicator"]) if b.type == cell_type]
     cells = np.vstack([c for c, _ in blocks])
     values = np.concatenate([np.ravel(d) for _, d in blocks])
     if len(vtu.points) != len(mesh.points) or len(cells) != len(mesh.cells):
         raise FieldsError(f"{solution}: {len(vtu.points)} nodes and {len(cells)} cells, the step's mesh has "
                           f"{len(mesh.points)} and {len(mesh.cells)}")
-    count = len(mesh.points)
-
-    def keys(c: np.ndarray) -> np.ndarray:
-        s = np.sort(c.astype(np.int64), axis=1)
-        return (s[:, 0] * count + s[:, 1]) * count + s[:, 2]
-
-    theirs = keys(cells)
-    order = np.argsort(theirs)
-    at = np.searchsorted(theirs[order], keys(mesh.cells))
-    if not np.array_equal(theirs[order][np.minimum(at, len(at) - 1)], keys(mesh.cells)):
+    theirs, ours = np.sort(cells.astype(np.int64), axis=1), np.sort(mesh.cells.astype(np.int64), axis=1)
+    order_theirs = np.lexsort(theirs.T[::-1])
+    order_ours = np.lexsort(ours.T[::-1])
+    if not np.array_equal(theirs[order_theirs], ours[order_ours]):
         raise FieldsError(f"{solution}: its cells are not the step's mesh")
-    return values[order[at]]
+    on_ours = np.empty(len(values))
+    on_ours[order_ours] = values[order_theirs]
+    return on_ours
 
 
 def solve_on(scene: Scene, mesh: Path, label: int, layout: Layout, warm: WarmStart | None, force: bool,
@@ -126,7 +131,9 @@ def adapt(scene: Scene, reference_scene: Scene, layout: Layout, steps: int, bulk
     step reaches `max_dofs`; then the reference."""
     check_adaptable(scene)
     start = build_mesh(scene.geometry, scene.levels[0], layout.meshes_dir(scene.name)).path
-    mesh = read_start(start)
+    dimension = scene.dimension
+    refiner = REFINERS[dimension]
+    mesh = read_start(start, dimension)
     warm: WarmStart | None = None
     done: list[Step] = []
     for index in range(1, steps + 1):
@@ -141,10 +148,11 @@ def adapt(scene: Scene, reference_scene: Scene, layout: Layout, steps: int, bulk
         warm = run.warm_start(path)
         if last:
             break
-        mesh = bisection.refine(mesh, marked)
+        mesh = refiner.refine(mesh, marked)
     reference_mesh = layout.meshes_dir(reference_scene.name) / "reference.msh"
-    write_step(bisection.uniform(mesh, 2), reference_mesh)
-    announce(f"reference: the last mesh bisected twice ({4 * len(mesh.cells)} cells)")
+    finest = refiner.uniform(mesh, REFERENCE_ROUNDS[dimension])
+    write_step(finest, reference_mesh)
+    announce(f"reference: the last mesh bisected uniformly ({len(finest.cells)} cells)")
     reference = solve_on(reference_scene, reference_mesh, done[-1].index + 1, layout, warm, force, progress)
     return Adaptation(done, reference, reference_mesh)
 

@@ -5,9 +5,10 @@ from __future__ import annotations
 import argparse
 import os
 from pathlib import Path
-from typing import NoReturn
+from typing import Any, Callable, NoReturn
 
 from harness.contract import ExitCode
+from harness.errors import SceneError
 from harness.layout import REPO, Layout, results_root
 
 
@@ -99,11 +100,24 @@ def add_memory_override(parser: argparse.ArgumentParser) -> None:
 
 def add_cluster(parser: argparse.ArgumentParser) -> None:
     """--scheduler / --cluster, for a study whose independent pieces can run on a cluster
-    (harness/executor.py's `cluster`)."""
-    parser.add_argument("--scheduler", metavar="tcp://HOST:PORT",
+    (harness/executor.py's `cluster`), each checked as the command line is read."""
+    from harness.executor import parse_cluster, scheduler_address
+
+    parser.add_argument("--scheduler", metavar="tcp://HOST:PORT", type=checked_by(scheduler_address),
                         help="run the study's chains on this Dask scheduler (workers share the results path)")
-    parser.add_argument("--cluster", metavar="local:N",
+    parser.add_argument("--cluster", metavar="local:N", type=checked_by(lambda text: parse_cluster(text) and text),
                         help="run them on a local Dask cluster of N worker processes")
+
+
+def checked_by(parse: Callable[[str], Any]) -> Callable[[str], Any]:
+    """An argparse type from a parser that raises SceneError: its one line becomes the error."""
+    def check(text: str) -> Any:
+        try:
+            return parse(text)
+        except SceneError as exc:
+            raise argparse.ArgumentTypeError(str(exc)) from None
+
+    return check
 
 
 def layout_of(args: argparse.Namespace) -> Layout:

@@ -15,6 +15,8 @@ from typing import Collection
 from harness.signals import CHILDREN
 from harness.study_lock import DirectoryLocks
 
+from harness.faults import naming
+
 
 def sibling_temp(target: Path) -> Path:
     """A unique hidden name next to `target` (same filesystem, so os.replace is atomic)."""
@@ -24,10 +26,11 @@ def sibling_temp(target: Path) -> Path:
 def write_atomic(target: Path, content: str | bytes) -> None:
     tmp = sibling_temp(target)
     try:
-        if isinstance(content, bytes):
-            tmp.write_bytes(content)
-        else:
-            tmp.write_text(content)
+        with naming(target):
+            if isinstance(content, bytes):
+                tmp.write_bytes(content)
+            else:
+                tmp.write_text(content)
         os.replace(tmp, target)
     finally:
         tmp.unlink(missing_ok=True)

@@ -102,7 +102,8 @@ def refine(mesh: BisectionMesh, marked: np.ndarray) -> BisectionMesh:
 
 
 def uniform(mesh: BisectionMesh, times: int = 1) -> BisectionMesh:
-    """Every cell bisected `times` times (twice: each triangle into four, the edges halved)."""
+    """`times` rounds, each bisecting every cell once at least (a child whose refinement edge
+    is cut too is bisected again in the same round): two rounds make four or more of each."""
     for _ in range(times):
         mesh = refine(mesh, np.ones(len(mesh.cells), dtype=bool))
     return mesh

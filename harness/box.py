@@ -71,7 +71,7 @@ class Box:
         raise MeshError(f"face {name}: no patch contains the triangle at {tuple(np.round(centroid, 6))}: "
                         "are the patch edges on the mesh's grid lines?")
 
-    def bodies(self) -> tuple[Body, ...]:
+    def body_parts(self) -> tuple[Body, ...]:
         return (Body("the box", (0.0, 0.0, 0.0), self.lengths),)
 
     def parts(self) -> tuple[Part, ...]:
@@ -118,6 +118,14 @@ class Box:
                 on |= plane & (points[:, a] > patch.a0 - tol) & (points[:, a] < patch.a1 + tol) \
                     & (points[:, b] > patch.b0 - tol) & (points[:, b] < patch.b1 + tol)
         return on
+
+    def used_roles(self) -> frozenset[str]:
+        return frozenset(self.role_areas())
+
+    def contact_normals(self) -> np.ndarray:
+        """The normal axis of each face with a contact patch (rows)."""
+        axes = ["xyz".index(name[0]) for name, patches in self.faces.items() if any(p.role == "contact" for p in patches)]
+        return np.eye(3)[axes]
 
     def role_areas(self) -> dict[str, float]:
         areas = dict.fromkeys(ROLE_LABELS, 0.0)

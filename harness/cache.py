@@ -24,7 +24,8 @@ from harness.record import RunRecord, read_run_json
 # The harness modules whose code turns a scene into FreeFEM's inputs (main.edp, options,
 # macros): an edit to any of them may change a result without changing the scene.
 INPUT_WRITERS = ("harness.script", "harness.freefem", "harness.run", "harness.mms", "harness.scene",
-                 "harness.schema", "harness.contract", "harness.unknowns", "harness.cache", "harness.engine")
+                 "harness.schema", "harness.contract", "harness.unknowns", "harness.cache", "harness.engine",
+                 "harness.floating")
 CHECKSUMS = "checksums.json"
 # Written after the checksums, or by the harness about the cache itself.
 UNCHECKED = frozenset({CHECKSUMS})

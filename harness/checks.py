@@ -45,6 +45,12 @@ TOLERANCES: dict[str, tuple[float, str]] = {
                    "the force balance's "
                    "margin; measured <= 5.6e-14"),
     "charge": (1e-8, "charge balance, as the heat balance; measured <= 1.4e-11"),
+    "floating": (1e-8, "a floating electrode's free charge read from the residual (the sum of its nodes' "
+                       "reactions, as electrode_charge) equals the given loads.floating_charge: the "
+                       "eliminated unknown's equation is that sum, so it holds up to Newton's final "
+                       "residual, as the charge balance; relative to the larger of |Q| and the round-off "
+                       "floor of the terms summed (floating_charge_reading); measured <= 1.1e-15 of Q, "
+                       "2e-16 of the reading for Q = 0 (tests/test_floating.py, n = 2, 4, 8)"),
 }
 
 
@@ -132,6 +138,9 @@ def floors(c: dict[str, Any], length: float) -> dict[str, float]:
     for name in ("heat", "charge"):
         out[name] = max(roundoff(f"{name}_reading", name), FLOOR * natural[name] * length, NOTHING_FLOWS)
         out[f"{name}_open_flux"] = max(roundoff(f"{name}_flux_reading", "open_flux"), FLOOR * natural[name], 1e-300)
+    # One per floating electrode (run.json's lists, in harness/contract.py FLOATING_ROLES order).
+    out["floating"] = [max(ROUNDINGS * EPS * reading / TOLERANCES["floating"][0], NOTHING_FLOWS)
+                       for reading in c.get("floating_charge_reading", [])]
     return out
 
 
@@ -201,8 +210,16 @@ def physical_checks(record: RunRecord, scene: Scene) -> dict[str, Any]:
         "heat_ok": out["heat_imbalance"] <= tol["heat"] or not out["heat_driven"],
         "charge_ok": out["charge_imbalance"] <= tol["charge"] or not out["charge_driven"],
     })
-    out["checks_ok"] = all(out[k] for k in CHECK_FLAGS)
+    if "floating_charge" in c:
+        # The worst electrode's: |charge read - given| relative to the larger of |given| and its floor.
+        out["floating_charge_error"] = max(abs(read - given) / max(abs(given), low) for read, given, low
+                                           in zip(c["floating_charge"], c["floating_charge_given"], floor["floating"]))
+        out["floating_ok"] = out["floating_charge_error"] <= tol["floating"]
+    out["checks_ok"] = all(out[k] for k in CHECK_FLAGS + SCENE_FLAGS if k in out)
     return out
 
 
 CHECK_FLAGS = ("force_ok", "sigma_nu_ok", "sigma_tau_ok", "open_flux_ok", "heat_ok", "charge_ok")
+# Checks of a part only some scenes have (a floating electrode): judged when the run reports
+# it, never said to be missing otherwise.
+SCENE_FLAGS = ("floating_ok",)

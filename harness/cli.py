@@ -22,7 +22,7 @@ from harness.faults import guarded, report
 TASKS: dict[str, tuple[str, ...]] = {
     "your own part (a case file of yours)": ("solve", "convergence", "adapt"),
     "checking the scheme": ("verify", "scenes", "stress", "branches", "crosscheck"),
-    "what it costs and how far it scales": ("cost", "bench", "solvers", "scale"),
+    "what it costs and how far it scales": ("cost", "bench", "solvers", "profile", "scale"),
 }
 STUDIES: dict[str, str] = {
     "convergence": "solve every level of a case; the error of each against the finest, and its slope",
@@ -35,6 +35,7 @@ STUDIES: dict[str, str] = {
     "cost": "what accuracy costs: the cost-accuracy frontier of a scene",
     "bench": "repeated timings (finest level, sweep, whole process), medians and spread",
     "solvers": "the solver table: every linear solver on the same levels, medians",
+    "profile": "where a solve's time and memory go, piece by piece, medians and shares",
     "crosscheck": "FreeFEM against the GetFEM peer, level by level, field by field",
     "scale": "past one machine: a solve on 1 and 2 MPI ranks, a study on a Dask cluster",
 }

@@ -13,11 +13,13 @@ from pathlib import Path
 
 # Boundary roles -> the integer tag gmsh writes and FreeFEM reads (physical curves/surfaces).
 ROLE_LABELS: dict[str, int] = {"clamped": 1, "loaded": 2, "free": 3, "contact": 4,
-                               "roller_x": 5, "roller_y": 6, "roller_z": 7, "electrode": 8, "ground": 9}
+                               "roller_x": 5, "roller_y": 6, "roller_z": 7, "electrode": 8, "ground": 9,
+                               "floating": 10, "floating_2": 11, "floating_3": 12}
 # The FreeFEM name of each label (identifiers cannot contain '_').
 ROLE_MACROS: dict[str, str] = {"clamped": "labClamped", "loaded": "labLoaded", "free": "labFree", "contact": "labContact",
                                "roller_x": "labRollerX", "roller_y": "labRollerY", "roller_z": "labRollerZ",
-                               "electrode": "labElectrode", "ground": "labGround"}
+                               "electrode": "labElectrode", "ground": "labGround",
+                               "floating": "labFloating", "floating_2": "labFloating2", "floating_3": "labFloating3"}
 ROLE_MEANING: dict[str, str] = {
     "clamped": "Gamma_1 = Gamma_a: u = 0, phi = 0, theta = 0",
     "loaded": "Gamma_2 = Gamma_b with traction f2: theta = 0",
@@ -28,7 +30,14 @@ ROLE_MEANING: dict[str, str] = {
     "roller_z": "a side normal to z (3D): u_z = 0, zero tangential traction, natural phi and theta",
     "electrode": "Gamma_2 and Gamma_a at a driven potential: zero traction, phi = loads.electrode_potential, theta = 0",
     "ground": "Gamma_2 and Gamma_a, an earthed electrode: zero traction, phi = 0, theta = 0",
+    "floating": "Gamma_2, an open electrode: traction f2 as a loaded part, phi uniform and unknown, net free charge loads.floating_charge, theta = 0",
+    "floating_2": "a second floating electrode (its own potential), net free charge loads.floating_charge_2",
+    "floating_3": "a third floating electrode (its own potential), net free charge loads.floating_charge_3",
 }
+# The floating electrodes' roles, one electrode each, in the order run.json reports them
+# (freefem/floating.idp); each role's net free charge is the [loads] key FLOATING_CHARGES names.
+FLOATING_ROLES = ("floating", "floating_2", "floating_3")
+FLOATING_CHARGES = {role: "floating_charge" + role.removeprefix("floating") for role in FLOATING_ROLES}
 
 
 class ExitCode(enum.IntEnum):
@@ -66,6 +75,7 @@ class Failure(enum.Enum):
     BAD_SOLVER_OPTIONS = (16, "PETSc rejected run.petsc_options")
     LINEAR_SOLVER = (17, "the Krylov solver did not converge")
     BAD_ELECTRODES = (18, "an electrode shares a node with a clamped or ground part (two potentials at one point)")
+    BAD_FLOATING = (19, "a floating electrode shares a node with a part of fixed potential (clamped, ground, electrode) or with another floating electrode")
     TIMEOUT = (None, "timed out")
     KILLED = (None, "killed by a signal")
     NO_OUTPUT = (None, "FreeFEM wrote no readable output")
@@ -89,7 +99,8 @@ class Failure(enum.Enum):
     @property
     def bad_input(self) -> bool:
         """The run failed on what the user wrote (harness exit code INPUT), not in the solve."""
-        return self in (Failure.BAD_SOLVER_OPTIONS, Failure.BAD_ELECTRODES, Failure.INVALID_MATERIAL)
+        return self in (Failure.BAD_SOLVER_OPTIONS, Failure.BAD_ELECTRODES, Failure.BAD_FLOATING,
+                        Failure.INVALID_MATERIAL)
 
     @classmethod
     def from_code(cls, code: int) -> Failure:
@@ -99,7 +110,7 @@ class Failure(enum.Enum):
 # The codes FreeFEM scripts of this project raise themselves (the others are FreeFEM's own).
 SCRIPT_FAILURES = (Failure.DIVERGED, Failure.NAN, Failure.MAX_ITERATIONS, Failure.BAD_INITIAL_GUESS,
                    Failure.INVALID_MATERIAL, Failure.BAD_DECOMPOSITION, Failure.BAD_SOLVER_OPTIONS,
-                   Failure.LINEAR_SOLVER, Failure.BAD_ELECTRODES)
+                   Failure.LINEAR_SOLVER, Failure.BAD_ELECTRODES, Failure.BAD_FLOATING)
 
 
 def contract_idp() -> str:

@@ -1,7 +1,7 @@
 """A picture of a device scene's solution (`python -m harness.device_plot results/strip_actuator/n16`):
 for a 2D body, phi, theta (when the scene has it) and the displacement on the deformed mesh (displacement and
 thickness exaggerated: a device is thin); for a 3D body, phi and theta on its bottom face
-(where a device meets its pad) and on the section y = 0 (harness/slices.py), from solution.vtu."""
+(where a device meets its pad; see face_panel) and on the section y = 0 (harness/slices.py), from solution.vtu."""
 
 from __future__ import annotations
 
@@ -52,16 +52,36 @@ def render_2d(f: Fields, fig: plt.Figure) -> None:
         ax.set_aspect("equal")
 
 
+def face_nodes(pts: np.ndarray, top: bool) -> np.ndarray:
+    """The nodes of the body's bottom (or top) face z = min (max)."""
+    z = pts[:, 2].max() if top else pts[:, 2].min()
+    return np.flatnonzero(np.abs(pts[:, 2] - z) < 1e-6 * np.ptp(pts[:, 2]))
+
+
+def face_panel(f: Fields, name: str, unit: str) -> tuple[str, str, np.ndarray, np.ndarray]:
+    """What a field's face panel shows: the field on the bottom face (where a device meets its
+    pad), or on the top face where only that one varies; where both faces hold one value (an
+    earthed base under a floating electrode), the vertical displacement on the top face, which
+    the field's uniform value says nothing about. Returns the title, the colour bar's label,
+    the face's nodes and the values shown (at every node)."""
+    values = f.field(name)
+    for top in (False, True):
+        nodes = face_nodes(f.points, top)
+        if np.ptp(values[nodes]) > 1e-9 * max(np.ptp(values), 1e-300):
+            return f"{name} on the {'top' if top else 'bottom'} face", f"{name} [{unit}]", nodes, values
+    return "u_z on the top face", "u_z [m]", face_nodes(f.points, True), f.field("u")[:, 2]
+
+
 def render_3d(f: Fields, fig: plt.Figure) -> None:
     pts = f.points
-    bottom = np.flatnonzero(np.abs(pts[:, 2] - pts[:, 2].min()) < 1e-6 * np.ptp(pts[:, 2]))
-    face = Triangulation(1e3 * pts[bottom, 0], 1e3 * pts[bottom, 1])
     cut = plane(f, 1, 0.0)
     axes = fig.subplots(len(panels(f)), 2, squeeze=False)
     for row, (name, unit) in enumerate(panels(f)):
         values = f.field(name)
-        contour(axes[row, 0], face, values[bottom], f"{name} [{unit}]")
-        axes[row, 0].set(title=f"{name} on the bottom face", xlabel="x [mm]", ylabel="y [mm]", aspect="equal")
+        title, label, nodes, shown = face_panel(f, name, unit)
+        face = Triangulation(1e3 * pts[nodes, 0], 1e3 * pts[nodes, 1])
+        contour(axes[row, 0], face, shown[nodes], label)
+        axes[row, 0].set(title=title, xlabel="x [mm]", ylabel="y [mm]", aspect="equal")
         contour(axes[row, 1], Triangulation(1e3 * cut.coords[:, 0], 1e3 * cut.coords[:, 1], cut.triangles),
                 cut.of(values), f"{name} [{unit}]")
         axes[row, 1].set(title=f"{name} on the section y = 0", xlabel="x [mm]", ylabel="z [mm]")

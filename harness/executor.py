@@ -67,9 +67,9 @@ def connect(scheduler: str | None = None, cluster: str | None = None) -> Iterato
     except ImportError:
         raise EnvironmentFault("a Dask cluster needs dask and distributed (pip install -e '.[cluster]'; "
                                "`make test` installs them)") from None
-    if scheduler:
+    if scheduler is not None:
         try:
-            client = Client(scheduler, timeout="20s")
+            client = Client(scheduler_address(scheduler), timeout="20s")
         except (OSError, TimeoutError) as exc:
             raise EnvironmentFault(f"cannot reach the Dask scheduler at {scheduler}: {exc}") from None
         with client:
@@ -87,10 +87,26 @@ def connect(scheduler: str | None = None, cluster: str | None = None) -> Iterato
         yield DaskExecutor(client)
 
 
+# distributed.comm's address schemes that reach a scheduler in another process ("inproc"
+# is one process's own).
+SCHEDULER_SCHEMES = ("tcp", "tls", "ucx", "ws", "wss")
+
+
+def scheduler_address(text: str) -> str:
+    """A Dask scheduler's SCHEME://HOST:PORT, checked before anything runs: Dask itself
+    raised a ValueError deep in a study for one without a scheme or port."""
+    scheme, sep, rest = text.strip().partition("://")
+    host, colon, port = rest.rpartition(":")
+    if not (sep and scheme in SCHEDULER_SCHEMES and host and colon and port.isdigit() and 0 < int(port) < 65536):
+        raise SceneError(f"{text!r} is not a Dask scheduler's address: expected SCHEME://HOST:PORT with SCHEME "
+                         f"one of {', '.join(SCHEDULER_SCHEMES)} (e.g. tcp://10.0.0.5:8786)")
+    return text.strip()
+
+
 def parse_cluster(text: str) -> int:
     kind, _, count = text.partition(":")
     if kind != "local" or not count.isdigit() or int(count) < 1:
-        raise SceneError(f"--cluster {text!r}: expected local:N with N >= 1 worker processes")
+        raise SceneError(f"{text!r} is not a local cluster: expected local:N with N >= 1 worker processes")
     return int(count)
 
 
@@ -98,11 +114,13 @@ def parse_cluster(text: str) -> int:
 def cluster(scheduler: str | None = None, local: str | None = None) -> Iterator[DaskExecutor | None]:
     """The pool a study's --scheduler / --cluster ask for; None (this process) when neither
     is given."""
-    if scheduler and local:
+    if scheduler is not None and local is not None:
         raise SceneError("give --scheduler or --cluster, not both")
-    if not (scheduler or local):
+    if scheduler is None and local is None:
         yield None
         return
+    if scheduler is not None:  # an empty one is refused, not taken for "no cluster"
+        scheduler = scheduler_address(scheduler)
     with connect(scheduler, local) as dask:
         yield dask
 

@@ -72,6 +72,18 @@ def space_for(what: str, directory: Path) -> Iterator[None]:
         raise EnvironmentFault(f"{MEANING[exc.errno]} for {what} in {directory}") from None
 
 
+@contextlib.contextmanager
+def naming(path: Path) -> Iterator[None]:
+    """An OSError from inside that names no file (a failed write() or close(): a disk that
+    fills while a report is written) is given `path`, so its one line says where."""
+    try:
+        yield
+    except OSError as exc:
+        if exc.filename is None:
+            exc.filename = os.fspath(path)
+        raise
+
+
 def exit_code(exc: BaseException) -> ExitCode:
     """The exit code of an exception that ended a command."""
     if isinstance(exc, KeyboardInterrupt):

@@ -234,8 +234,9 @@ def run_cost(
     results: Path,
     force: bool = False,
     progress: Progress = stderr_line,
+    scripts: Path = Layout().freefem,
 ) -> CostStudy:
-    layout = Layout(results=results / "runs")
+    layout = Layout(results=results / "runs", freefem=scripts)
     base = load_scene(case, overrides)
     check_solver_files(base, layout)
     freefem.freefem_version()

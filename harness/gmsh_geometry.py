@@ -4,7 +4,7 @@ harness/contract.py ROLE_LABELS by the case file's [geometry.roles] table.
 
 The file is read once when the scene loads, so every mistake in it (a missing file, a gmsh
 syntax error, a name without a role, a role naming no group, a body gmsh meshes in the other
-dimension, nothing clamped) ends the command before anything runs. The contact part is kept
+dimension) ends the command before anything runs. The contact part is kept
 as the facets of a mesh of its own curves or surfaces: straight or flat pieces, so any
 level's Gamma_3 nodes are found by lying on them (checks.py), whatever the body's shape.
 """
@@ -27,8 +27,6 @@ from harness.errors import SceneError
 from harness.gmsh_api import session
 
 LEVEL_KINDS = ("split", "remesh")
-# Rollers along every axis hold the body like a clamp (docs/geometry.md says when they do).
-ROLLERS = ("roller_x", "roller_y", "roller_z")
 
 
 # Triangle area [m^2] below which a 2D level is read by freefem/dimension.idp's own reader:
@@ -47,11 +45,18 @@ class GmshGeometry:
     # The coarsest mesh's vertices, edges, (3D: faces,) cells: the guards' node counts.
     coarsest_counts: tuple[int, ...] = ()
     coarsest_min_cell: float = math.inf  # its smallest triangle's area (2D) [m^2]
+    # The file's named physical surfaces (2D) or volumes (3D) with their entities, and the
+    # entities of the body in none of them.
+    bodies: tuple[tuple[str, tuple[int, ...]], ...] = ()
+    unnamed_bodies: tuple[int, ...] = ()
+    # The material regions a scene maps (harness/regions.py), in label order: the cells of
+    # regions[i] carry the label i + 1 in the mesh; none: every cell carries 1.
+    regions: tuple[str, ...] = ()
     # Each physical group's corner points (gmsh's points in the closure of its entities).
     corners: tuple[tuple[str, tuple[tuple[float, ...], ...]], ...] = ()
-    body_boxes: tuple[Body, ...] = ()  # each surface (2D) or volume (3D) of the body
+    body_boxes: tuple[Body, ...] = ()  # each part of the body (harness/cell_size.py)
 
-    def bodies(self) -> tuple[Body, ...]:
+    def body_parts(self) -> tuple[Body, ...]:
         return self.body_boxes
 
     def parts(self) -> tuple[Part, ...]:
@@ -64,6 +69,17 @@ class GmshGeometry:
     @property
     def role_of_name(self) -> dict[str, str]:
         return dict(self.roles)
+
+    def used_roles(self) -> frozenset[str]:
+        return frozenset(role for _, role in self.roles)
+
+    def contact_normals(self) -> np.ndarray:
+        """A normal of each contact facet (rows; unnormalised)."""
+        normals = []
+        for facet in self.contact:
+            edges = np.array(facet[1:]) - np.array(facet[0])
+            normals.append((-edges[0][1], edges[0][0]) if self.dimension == 2 else np.cross(edges[0], edges[1]))
+        return np.array(normals, dtype=float).reshape(-1, self.dimension)
 
     def nodes_at(self, n: int) -> int:
         """Nodes of level n for the memory and disk guards (harness/guards.py): exact for a
@@ -157,18 +173,11 @@ def parse_gmsh(table: dict[str, Any], case_dir: Path, levels: list[int], effects
         if role not in ROLE_LABELS:
             raise SceneError(f"geometry.roles.{name} = {role!r}: role must be one of {', '.join(ROLE_LABELS)}")
     used = set(roles.values())
-    # What holds the body: a clamp, rollers along every axis, or the penalised foundation with
-    # friction (its normal and tangential penalties, once pressed: tests/data/block.toml).
-    held = "clamped" in used or set(ROLLERS[:dimension]) <= used or (
-        "contact" in used and {"contact", "friction"} <= set(effects))
-    if not held:
-        raise SceneError("geometry.roles: no part is clamped (nor rollers along every axis, nor a contact part "
-                         "with friction): the body could move as a rigid body")
     if "contact" in effects and "contact" not in used:
         raise SceneError("geometry.roles: the contact part is empty (no name maps to role contact) but effect "
                          "'contact' is on")
     coarsest = table["coarsest"] or min(levels)
-    found, bounds, contact, counts, smallest, corners, bodies = read_geo(
+    found, bounds, contact, counts, smallest, bodies, unnamed, corners, boxes = read_geo(
         file, dimension, coarsest, [n for n, r in roles.items() if r == "contact"])
     facet = "curve" if dimension == 2 else "surface"
     for name in found:
@@ -182,16 +191,20 @@ def parse_gmsh(table: dict[str, Any], case_dir: Path, levels: list[int], effects
         raise SceneError(f"{file.name}: the contact part is empty (no {facet} in it)")
     return GmshGeometry(file=file, dimension=dimension, roles=tuple(roles.items()), levels=table["levels"],
                         coarsest=coarsest, bounds=bounds, contact=contact, coarsest_counts=counts,
-                        coarsest_min_cell=smallest, corners=corners, body_boxes=bodies)
+                        coarsest_min_cell=smallest, bodies=bodies, unnamed_bodies=unnamed, corners=corners,
+                        body_boxes=boxes)
 
 
 def read_geo(file: Path, dimension: int, coarsest: int, contact_names: list[str]) -> tuple[
         dict[str, list[int]], tuple[float, ...], tuple[tuple[tuple[float, ...], ...], ...], tuple[int, ...], float,
-        tuple[tuple[str, tuple[tuple[float, ...], ...]], ...], tuple[Body, ...]]:
+        tuple[tuple[str, tuple[int, ...]], ...], tuple[int, ...], tuple[tuple[str, tuple[tuple[float, ...], ...]], ...],
+        tuple[Body, ...]]:
     """The names of the file's physical groups of dimension d - 1 (with their entities),
     its bounding box, the contact entities' facets, the coarsest level's mesh's counts
-    of vertices, edges, (faces,) cells (h = 1/coarsest), (2D) its smallest triangle's area
-    each group's corner points and the body's pieces (harness/cell_size.py)."""
+    of vertices, edges, (faces,) cells (h = 1/coarsest), (2D) its smallest triangle's area,
+    its named physical groups of dimension d (the body's regions) with their entities, the
+    body's entities in none of them, each boundary group's corner points and the body's
+    parts (harness/cell_size.py)."""
     with session():
         try:
             gmsh.open(str(file))
@@ -211,9 +224,15 @@ def read_geo(file: Path, dimension: int, coarsest: int, contact_names: list[str]
             name = gmsh.model.getPhysicalName(dim, tag) or str(tag)
             if entities:
                 found.setdefault(name, []).extend(entities)
+        bodies: dict[str, list[int]] = {}
+        for dim, tag in gmsh.model.getPhysicalGroups(dimension):
+            name = gmsh.model.getPhysicalName(dim, tag) or str(tag)
+            bodies.setdefault(name, []).extend(int(e) for e in gmsh.model.getEntitiesForPhysicalGroup(dim, tag))
+        named = {e for group in bodies.values() for e in group}
+        unnamed = tuple(int(tag) for _, tag in gmsh.model.getEntities(dimension) if int(tag) not in named)
         bounds = tuple(float(b) for b in gmsh.model.getBoundingBox(-1, -1))
         corners = tuple((name, corner_points(dimension, tags)) for name, tags in found.items())
-        bodies = body_pieces(file.name, dimension)
+        boxes = body_pieces(file.name, dimension)
         entities = [e for name in contact_names for e in found.get(name, [])]
         gmsh.option.setNumber("Mesh.MeshSizeMax", 1.0 / coarsest)
         try:
@@ -223,7 +242,8 @@ def read_geo(file: Path, dimension: int, coarsest: int, contact_names: list[str]
         counts = simplex_counts(dimension)
         smallest = smallest_triangle() if dimension == 2 else math.inf
         contact = contact_facets(dimension, entities) if entities else ()
-    return found, bounds, contact, counts, smallest, corners, bodies
+    return (found, bounds, contact, counts, smallest, tuple((k, tuple(v)) for k, v in bodies.items()), unnamed,
+            corners, boxes)
 
 
 def body_pieces(file_name: str, dimension: int) -> tuple[Body, ...]:
@@ -297,22 +317,3 @@ def contact_facets(dimension: int, entities: list[int]) -> tuple[tuple[tuple[flo
             for cell in np.asarray(nodes, dtype=int).reshape(-1, per)[:, :dimension]:
                 out.append(tuple(tuple(float(x) for x in where[int(t)]) for t in cell))
     return tuple(out)
-
-
-def check_poling(value: Any, dimension: int) -> None:
-    """The poling axis (the material's axis 3) a scene may name: the default one only (y in
-    2D, z in 3D), as a named axis or a unit vector. A rotated poling would need the material
-    tensors rotated in freefem/constitutive.idp; until then it is refused, and a user rotates
-    the drawing instead."""
-    default = "y" if dimension == 2 else "z"
-    vector = [0.0] * dimension
-    vector[dimension - 1] = 1.0
-    if value in ("", default):
-        return
-    if isinstance(value, list) and len(value) == dimension and all(
-            isinstance(x, (int, float)) and not isinstance(x, bool) for x in value):
-        norm = math.sqrt(sum(x * x for x in value))
-        if norm > 0 and all(abs(x / norm - v) <= 1e-12 for x, v in zip(value, vector)):
-            return
-    raise SceneError(f"scene.poling_axis = {value!r}: only the default axis is supported ({default!r} or "
-                     f"{vector} in {dimension}D); rotate the geometry so that the poling runs along {default}")

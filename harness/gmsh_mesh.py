@@ -61,6 +61,7 @@ class SimplexMesh:
     facets: np.ndarray   # (B, d), each boundary facet once, outward oriented
     labels: np.ndarray   # (B,) role label per facet
     quality: dict[str, float]
+    regions: np.ndarray | None = None  # (M,) material region label per cell (harness/regions.py)
 
 
 def split_count(geometry: GmshGeometry, n: int) -> int:
@@ -101,12 +102,25 @@ def generate(geometry: GmshGeometry, n: int) -> SimplexMesh:
                         "its mesh (Transfinite counts?), so remesh cannot refine it; use levels = \"split\"")
     cells = index[cells]
     cells = oriented(points, cells, entity_of_cell, n)
+    regions = region_labels(geometry, entity_of_cell)
     facets, labels = labelled_boundary(points, cells, {tuple(sorted(index[list(f)])): r for f, r in named.items()}, n)
     if refinements > by_gmsh:
         fine = tet_split.refine(tet_split.TetMesh(points, cells, facets, labels), refinements - by_gmsh)
         points, cells, facets, labels = fine.points, fine.cells, fine.facets, fine.labels
+        if regions is not None:  # each split puts a tetrahedron's 8 children in its place, in order
+            regions = np.repeat(regions, 8 ** (refinements - by_gmsh))
     check_flat_contact(points, facets, labels, n)
-    return SimplexMesh(points, cells, facets, labels, quality(points, cells))
+    return SimplexMesh(points, cells, facets, labels, quality(points, cells), regions)
+
+
+def region_labels(geometry: GmshGeometry, entity_of_cell: np.ndarray) -> np.ndarray | None:
+    """Each cell's region label (1 + the region's index in geometry.regions), or None when
+    the scene maps no regions (every cell then carries BODY_LABEL, as before regions)."""
+    if not geometry.regions:
+        return None
+    entities = dict(geometry.bodies)
+    label_of = {e: i + 1 for i, name in enumerate(geometry.regions) for e in entities[name]}
+    return np.array([label_of[int(e)] for e in entity_of_cell], dtype=int)
 
 
 def curved_body() -> bool:
@@ -256,7 +270,7 @@ def write_msh(mesh: SimplexMesh, path: Path) -> None:
     d = mesh.cells.shape[1] - 1
     points = np.zeros((len(mesh.points), 3))
     points[:, :d] = mesh.points
-    body = np.full(len(mesh.cells), BODY_LABEL)
+    body = mesh.regions if mesh.regions is not None else np.full(len(mesh.cells), BODY_LABEL)
     cells = [(MESHIO_TYPE[d - 1], mesh.facets), (MESHIO_TYPE[d], mesh.cells)]
     data = {"gmsh:physical": [mesh.labels, body], "gmsh:geometrical": [mesh.labels, body]}
     import meshio  # here, not at start-up: its import (95 ms, its CLI pulls in rich) would delay FreeFEM's start (freefem.launch warms it)

@@ -24,11 +24,17 @@ from typing import Any
 from harness import freefem, mpi_shim
 from harness.contract import Failure
 from harness.errors import RunError, SceneError
+from harness.guards import geometry_depth, level_nodes
 from harness.unknowns import Unknowns
 
 MPI_PLUGIN_PATH = "/usr/lib/freefem++/mpi"  # plugins built against MPI (the others abort in FreeFem++-mpi)
 IDP_PATH = "/usr/include/freefem++/idp"  # macro_ddm.idp, from Debian's libfreefem++-dev
 PARALLEL_SCHEME = "parallel.idp"
+# Launchers that pass the arguments after the script through a shell's `eval`, so a path
+# with a space or a quote would be split or mangled there: Debian's ff-mpirun builds the
+# mpiexec command as a string and runs `eval "${a[*]}"`. Each argument is quoted for it;
+# mpiexec, srun and the like pass their arguments on as given.
+EVALUATING_LAUNCHERS = ("ff-mpirun",)
 # The Newton history the distributed solve owns (run.json takes these from parallel.json).
 NEWTON_KEYS = ("converged", "reason", "newton_iterations", "residuals", "increments", "error_estimates",
                "damping", "consistent_tangent", "active_nodes", "slip_nodes", "active_set_changes")
@@ -50,11 +56,55 @@ class Ranks:
             head = shlex.split(self.launcher.format(ranks=self.count))
         except (KeyError, IndexError, ValueError) as exc:
             raise SceneError(f"run.launcher {self.launcher!r} is not a command with {{ranks}}: {exc}") from None
-        return [*head, script.name, "-nw", "-v", "0", *options]
+        args = ["-nw", "-v", "0", *options]
+        if head and Path(head[0]).name in EVALUATING_LAUNCHERS:
+            args = [shlex.quote(arg) for arg in args]  # that shell splits them once more
+        return [*head, script.name, *args]
 
 
 def ranks_of(scene: Any) -> Ranks:
     return Ranks(scene.sections.run.ranks, scene.sections.run.launcher)
+
+
+# The fewest mesh nodes a rank's subdomain may have. Below it macro_ddm's overlapping
+# decomposition can miss neighbours that share a dof, and parallel_newton.idp rejects the
+# run ("too coarse", FreeFEM exit 15). Measured on the paper's 4 x 1 rectangle: n = 2
+# (27 nodes) ran on 2 and 3 ranks (9 nodes each) and was rejected on 4 (6.75); n = 4 (85
+# nodes) ran on 8 and 16 ranks (5.3 each) and was rejected on 32 (2.7); paper3d's n = 2
+# (81 nodes) ran on 2 to 16 ranks. 9 is the smallest share seen to pass wherever a smaller
+# one failed.
+NODES_PER_RANK = 9
+
+
+def level_capacity(scene: Any, n: int) -> int:
+    """The most ranks level n of the scene can be split over (1: only the sequential scheme)."""
+    geometry = scene.geometry
+    nodes = level_nodes(geometry.width, geometry.height, n, "P1", geometry_depth(geometry),
+                        getattr(geometry, "nodes_at", None))
+    return max(1, nodes // NODES_PER_RANK)
+
+
+def level_scene(scene: Any, n: int) -> Any:
+    """The scene as level n runs it: on run.ranks, or on as many as the level can take
+    (down to one) when it is too small for them. A chain's coarse levels, each only the
+    start of the next, so run; a level asked for is checked first (check_level_ranks)."""
+    ranks = scene.sections.run.ranks
+    return scene if ranks == 1 else scene.on_ranks(min(ranks, level_capacity(scene, n)))
+
+
+def check_level_ranks(scene: Any, n: int) -> str | None:
+    """Refuse a level asked for on ranks that cannot take even 2 of them (its decomposition
+    would be rejected); a warning (or None) when it runs on fewer than run.ranks."""
+    ranks = scene.sections.run.ranks
+    if ranks == 1:
+        return None
+    capacity = level_capacity(scene, n)
+    if capacity < 2:
+        raise SceneError(f"level n = {n} is too small for run.ranks = {ranks}: its mesh cannot be split over even "
+                         f"2 ranks (at least {NODES_PER_RANK} nodes each); solve it with run.ranks = 1, or a finer level")
+    if capacity < ranks:
+        return f"level n = {n} runs on {capacity} of the {ranks} ranks of run.ranks (at least {NODES_PER_RANK} mesh nodes a rank)"
+    return None
 
 
 def check_parallel(scene: Any) -> None:

@@ -8,25 +8,23 @@ one line naming the file and the entry. The rules have one home each:
 - the file's syntax (every tensor a macro of plain, finite numbers, as the GetFEM peer reads
   them; a `materialName` equal to the file's name) is read here;
 - the physics (presence, shapes, symmetry, magnitudes, positive definiteness, the plane-strain
-  reduction) is freefem/material.idp's, run by FreeFEM on the file alone (`constants`), as
-  every solve runs it.
+  reduction) is freefem/material.idp's, run by FreeFEM on the file alone
+  (harness/material_constants.py), as every solve runs it.
 """
 
 from __future__ import annotations
 
-import functools
 import json
 import math
 import re
-import tempfile
 from pathlib import Path
 from typing import Any
 
 import numpy as np
 
-from harness import freefem
-from harness.contract import Failure
-from harness.errors import RunError, SceneError
+from harness.errors import SceneError
+from harness.layout import Layout
+from harness.material_constants import material_constants
 from harness.schema import is_material_path
 
 # The material tensors: macro name -> key of the peer's input and symbol of an entry
@@ -40,25 +38,21 @@ ROW = re.compile(r"\[([^\[\]]*)\]")
 NUMBER_IN = re.compile(r"(?:\d+\.?\d*|\.\d+)(?:[eE][+-]?\d+)?")
 WORD = re.compile(r"[A-Za-z_]\w*")
 
-# The plane-strain constants material.idp derives (its section 6), then the out-of-plane
-# constants of the 3D law (freefem/constitutive.idp).
-CONSTANTS = ("f11", "f13", "f33", "f44", "e31", "e33", "e15", "b11", "b33", "m11", "m33", "p1", "p3", "k11", "k33")
-CONSTANTS_3D = ("fC12", "fC22", "fC23", "f2323", "f1212", "e24", "e32", "b22", "m22", "p2", "k22")
-
 
 def file_of(material: str, library: Path) -> Path:
     return Path(material) if is_material_path(material) else library / f"{material}.idp"
 
 
-def check(path: Path, reduction: Path) -> None:
+def check(path: Path, layout: Layout) -> None:
     """Every rule, before anything is meshed or run; one SceneError line naming the file.
-    Without `reduction` (a stand-in solver with no material rules) only the name is checked."""
+    Without freefem/material.idp (a stand-in solver with no material rules) only the name is
+    checked."""
     text = read(path)
     name = NAME.search(text)
     if name and name.group(1) != path.stem:
         raise SceneError(f"invalid material file {path}: materialName {name.group(1)!r} differs from the file's "
                          f"name {path.stem!r} (rename one of them)")
-    if not reduction.is_file():
+    if not layout.material_reduction_file().is_file():
         return
     if not name:
         raise SceneError(f"invalid material file {path}: no materialName "
@@ -66,7 +60,7 @@ def check(path: Path, reduction: Path) -> None:
     for macro, body in MACRO.findall(text):  # what FreeFEM cannot name: nan, inf, 1e999, words
         if macro in MATERIAL_MACROS:
             check_entries(path, macro, body)
-    constants(str(path.resolve()), str(reduction.resolve()))
+    material_constants(str(path.resolve()), layout)  # material.idp's rules, run by FreeFEM
 
 
 def read(path: Path) -> str:
@@ -118,25 +112,3 @@ def check_entries(path: Path, name: str, body: str) -> None:
                 where = f"{MATERIAL_MACROS[name]}{i + 1}{j + 1}" if nested else f"{MATERIAL_MACROS[name]}{j + 1}"
                 raise SceneError(f"invalid material file {path}: {name} entry {where} = {entry.strip()} "
                                  "is not a finite number")
-
-
-@functools.cache
-def constants(material_file: str, reduction_file: str) -> tuple[tuple[str, float], ...]:
-    """Include the material as a run does, print the derived constants to 17 digits. A set that
-    material.idp refuses is a SceneError with its line (the file, the tensor, the entry)."""
-    includes = [material_file] + [reduction_file] * Path(reduction_file).is_file()
-    lines = [f'include "{p}"' for p in includes] + ["cout.precision(17);"]
-    lines += [f'cout << "{k} " << {k} << endl;' for k in CONSTANTS + CONSTANTS_3D]
-    with tempfile.TemporaryDirectory(prefix="ff-material-") as tmp:
-        script = Path(tmp) / "constants.edp"
-        script.write_text("\n".join(lines) + "\n")
-        outcome = freefem.invoke(freefem.command(script, []), Path(tmp), timeout_s=60)
-        text = (Path(tmp) / "stdout.txt").read_text()
-    if outcome.returncode == Failure.INVALID_MATERIAL.code:
-        said = next((line for line in text.splitlines() if line.startswith("error: material ")), "")
-        raise SceneError(f"invalid material file {material_file}: {said.removeprefix('error: ') or 'refused'}")
-    found = dict(line.split() for line in text.splitlines() if len(line.split()) == 2)
-    if outcome.returncode != 0 or set(CONSTANTS + CONSTANTS_3D) - set(found):
-        raise RunError(f"FreeFEM could not print the constants of {material_file}: "
-                       f"{freefem.error_detail(text) or 'missing constants'}")
-    return tuple((k, float(found[k])) for k in CONSTANTS + CONSTANTS_3D)

@@ -13,26 +13,24 @@ R_u = int sigma:eps(v) - int f0.v gives f0 = -div sigma; R_phi = -int D.grad(xi)
 int phi0 xi gives phi0 = div D; R_theta = -int q.grad(eta) - int vartheta0 eta gives
 vartheta0 = div q. An effect a scene leaves off removes its field and couplings (phi* = 0
 and E = 0 without piezoelectricity, theta* = 0 without heat, P = 0 without pyroelectricity).
-The material constants are asked of FreeFEM itself (the material file and, when present,
-its plane-strain reduction freefem/material.idp), so nothing here repeats them.
+The material constants are asked of FreeFEM itself (harness/material_constants.py), so
+nothing here repeats them.
 """
 
 from __future__ import annotations
 
-import functools
 import math
-import tempfile
 from dataclasses import dataclass
-from pathlib import Path
-from typing import Callable, Mapping
+from typing import Any, Callable, Mapping
 
 import numpy as np
 import sympy
 
-from harness import freefem
-from harness.errors import RunError, SceneError
+from harness.errors import SceneError
 from harness.layout import Layout
-from harness.materials import CONSTANTS, CONSTANTS_3D, constants
+from harness.material_constants import (CONSTANTS, CONSTANTS_3D, ROTATED, ROTATED_CONDUCTIVITY, ROTATED_ELASTIC,
+                                        ROTATED_PERMITTIVITY, ROTATED_PIEZO, ROTATED_STRESS_TEMPERATURE,
+                                        material_constants)
 
 X, Y, Z = sympy.symbols("x y z", real=True)
 EXACT_KEYS = ("u1", "u2", "u3", "phi", "theta")  # u3: a box scene's (3D) only
@@ -90,11 +88,12 @@ def derive(exact: Exact, constants: Mapping[str, float], effects: tuple[str, ...
     on, with the Voigt law of freefem/constitutive.idp in material axes (AXES): in 2D the
     axis-2 terms vanish (plane strain) and the keys are sig11, sig33, sig13, D1, D3, q1, q3,
     f1, f2; in 3D every component is there."""
-    names = CONSTANTS + CONSTANTS_3D * (dimension == 3)
+    rotated = any(k in constants for k in ROTATED)
+    names = CONSTANTS + CONSTANTS_3D * (dimension == 3) + ROTATED * rotated
     c = {k: sympy.Float(constants[k]) if k in constants else sympy.Symbol(k) for k in names}
     piezo, thermal = "piezoelectric" in effects, "thermal" in effects
     if not piezo:
-        for name in PIEZO.values():
+        for name in (*PIEZO.values(), *(ROTATED_PIEZO.values() if rotated else ())):
             c[name] = sympy.Integer(0)
     if "pyroelectric" not in effects:
         for name in ("p1", "p2", "p3"):
@@ -113,24 +112,33 @@ def derive(exact: Exact, constants: Mapping[str, float], effects: tuple[str, ...
     eps = {I: d(w(a), a) if a == b else d(w(a), b) + d(w(b), a) for I, (a, b) in VOIGT_PAIRS.items()}
     present = [I for I, (a, b) in VOIGT_PAIRS.items() if a in axes and b in axes]
 
-    def C(I: int, J: int) -> sympy.Expr:
-        name = ELASTIC.get((min(I, J), max(I, J)))
+    def entry(table: Mapping, extra: Mapping, key: Any) -> sympy.Expr:
+        name = table.get(key) or (extra.get(key) if rotated else None)
         return c[name] if name else sympy.Integer(0)
 
+    def C(I: int, J: int) -> sympy.Expr:
+        return entry(ELASTIC, ROTATED_ELASTIC, (min(I, J), max(I, J)))
+
     def e(k: int, I: int) -> sympy.Expr:
-        return c[PIEZO[(k, I)]] if (k, I) in PIEZO else sympy.Integer(0)
+        return entry(PIEZO, ROTATED_PIEZO, (k, I))
 
     def m(I: int) -> sympy.Expr:
-        return c.get(f"m{I}{I}", sympy.Integer(0)) if I <= 3 else sympy.Integer(0)
+        return entry({J: f"m{J}{J}" for J in (1, 2, 3) if f"m{J}{J}" in c}, ROTATED_STRESS_TEMPERATURE, I)
+
+    def b(k: int, l: int) -> sympy.Expr:
+        return c[f"b{k}{k}"] if k == l else entry({}, ROTATED_PERMITTIVITY, (min(k, l), max(k, l)))
+
+    def kappa(k: int, l: int) -> sympy.Expr:
+        return c[f"k{k}{k}"] if k == l else entry({}, ROTATED_CONDUCTIVITY, (min(k, l), max(k, l)))
 
     out = {"u1": exact.u1, "u2": exact.u2, "phi": phi, "theta": theta}
     if dimension == 3:
         out["u3"] = exact.u3
     sig = {I: sum((C(I, J) * eps[J] for J in present), sympy.Integer(0))
            + sum((e(k, I) * d(phi, k) for k in axes), sympy.Integer(0)) - m(I) * theta for I in present}
-    D = {k: sum((e(k, I) * eps[I] for I in present), sympy.Integer(0)) - c[f"b{k}{k}"] * d(phi, k)
-         - c[f"p{k}"] * theta for k in axes}
-    q = {k: -c[f"k{k}{k}"] * d(theta, k) for k in axes}
+    D = {k: sum((e(k, I) * eps[I] for I in present), sympy.Integer(0))
+         - sum((b(k, l) * d(phi, l) for l in axes), sympy.Integer(0)) - c[f"p{k}"] * theta for k in axes}
+    q = {k: -sum((kappa(k, l) * d(theta, l) for l in axes), sympy.Integer(0)) for k in axes}
     for I in present:
         out["sig%d%d" % VOIGT_PAIRS[I]] = sig[I]
     for k in axes:
@@ -208,14 +216,11 @@ def scene_macros(scene, layout: Layout) -> dict[str, str]:
     texts = scene.manufactured
     if not texts:
         return {}
+    if scene.regions:
+        raise SceneError("a manufactured solution takes one material (scene.material), not [scene.materials]")
     exact = parse_exact(texts, scene.dimension)
-    return macros(derive(exact, material_constants(scene.material, layout), scene.effects, scene.dimension),
-                  scene.dimension)
-
-
-def material_constants(material: str, layout: Layout) -> dict[str, float]:
-    return dict(constants(str(layout.material_file(material).resolve()),
-                          str(layout.material_reduction_file().resolve())))
+    constants = material_constants(scene.material, layout, tuple(scene.poling_macros().items()), scene.dimension)
+    return macros(derive(exact, constants, scene.effects, scene.dimension), scene.dimension)
 
 
 def numeric(derived: Mapping[str, sympy.Expr]) -> dict[str, Callable[[np.ndarray, np.ndarray], np.ndarray]]:

@@ -10,6 +10,7 @@ building at once never load half a file. Every failure is one EnvironmentFault l
 from __future__ import annotations
 
 import hashlib
+import itertools
 import os
 import shutil
 import subprocess
@@ -66,6 +67,14 @@ def library(spec: Build) -> Path:
 
 
 def first_error(stderr: str) -> str:
-    """The compiler's first error line (warnings before it are noise here)."""
-    lines = [line.strip() for line in stderr.splitlines() if line.strip()]
-    return next((line for line in lines if "error" in line), lines[0] if lines else "no message")
+    """The compiler's first error line (warnings before it are noise here); without one, its
+    first paragraph of text on one line. Banner lines of dashes are left out: OpenMPI's
+    wrapper (mpicxx) says it cannot find the compiler it wraps between two of them, the name
+    on the paragraph's second line."""
+    lines = [line.strip() for line in stderr.splitlines()]
+    text = [line for line in lines if not line or any(c.isalnum() for c in line)]
+    error = next((line for line in text if "error" in line), None)
+    if error:
+        return error
+    paragraph = itertools.takewhile(bool, itertools.dropwhile(lambda line: not line, text))
+    return " ".join(paragraph) or "no message"

@@ -26,9 +26,10 @@ from typing import Callable, Sequence, TypeVar
 
 from harness.atomic import StudyTransaction
 from harness.errors import VerdictError
-from harness.faults import check_results_root
+from harness.faults import check_results_root, naming
 from harness.guards import (Slope, check_memory, check_nested, check_slope_levels, geometry_depth, mesh_file_bytes,
                             need_disk)
+from harness.launcher import check_level_ranks
 from harness.scene import Scene, load_scene
 
 R = TypeVar("R")
@@ -93,6 +94,10 @@ def check_guards(plan: Plan) -> None:
             check_nested(levels)
         given = item.levels and tuple(item.levels) != tuple(scene.levels)
         check_slope_levels(levels, item.slope, "--levels" if given else f"{scene.source} [study] levels")
+        for n in levels:
+            fewer = check_level_ranks(scene, n)
+            if fewer:
+                print(f"warning: {fewer}", file=sys.stderr)
         if not plan.ignore_memory:
             check_memory(scene.geometry.width, scene.geometry.height, levels, scene.effects, scene.element,
                          depth=geometry_depth(scene.geometry), factorises=scene.factorises,
@@ -115,7 +120,9 @@ def run_pipeline(plan: Plan, runs: Callable[[], R], report: Callable[[R], object
     transaction = StudyTransaction(*plan.scene_dirs, outputs=plan.outputs, locked=plan.locked)
     with transaction:
         result = runs()
-        report(result)
+        # A write that names no file of its own is said to be in the study's first directory.
+        with naming(next(iter((*plan.outputs, *plan.scene_dirs)), plan.results)):
+            report(result)
     for path in transaction.swept_after:
         print(f"warning: {path}: the temp dir of a run whose process died during the study (a killed Dask "
               f"worker?), removed; its level was run again and the study is complete", file=sys.stderr)

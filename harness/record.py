@@ -29,6 +29,9 @@ CHECK_KEYS = frozenset({
     "max_charge_flux_contact", "max_charge_flux_open", "max_charge_flux_open_expected",
     # the size of the terms each reading sums (the checks' floors, harness/checks.py)
     "force_reading", "traction_reading", "heat_reading", "heat_flux_reading", "charge_reading", "charge_flux_reading",
+    # a floating electrode's potential, its charge read from the residual, the given one, and the
+    # size of the terms that reading sums (freefem/floating.idp; only when the scene has one)
+    "floating_potential", "floating_charge", "floating_charge_given", "floating_charge_reading",
 })
 
 
@@ -76,6 +79,8 @@ class RunRecord:
     total_s: float | None = None
     ready_s: float | None = None
     initial_guess_s: float | None = None
+    # each piece of the run: [CPU seconds, calls, MB it raised the peak by] (freefem/profile.idp)
+    profile: dict[str, list[float]] | None = None
     max_abs_u: float | None = None
     contact_force: float | None = None
     friction_force: float | None = None  # the magnitude of friction_force_vector

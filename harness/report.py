@@ -9,6 +9,7 @@ from typing import Any
 import pandas as pd
 
 from harness.atomic import sibling_temp
+from harness.faults import naming
 from harness.layout import Layout
 from harness.norm_table import TOTAL, error_column, error_names
 from harness.plot import plot_convergence
@@ -38,9 +39,12 @@ def write_report(study: Study, layout: Layout) -> dict[str, Path]:
     }
     temps = {kind: sibling_temp(path) for kind, path in targets.items()}
     try:
-        temps["csv"].write_text(csv_text(study.table, PRECISE_CSV_FORMAT))
-        temps["summary"].write_text(json_text(summary(study)))
-        plot_convergence(study, temps["plot"])
+        with naming(targets["csv"]):
+            temps["csv"].write_text(csv_text(study.table, PRECISE_CSV_FORMAT))
+        with naming(targets["summary"]):
+            temps["summary"].write_text(json_text(summary(study)))
+        with naming(targets["plot"]):
+            plot_convergence(study, temps["plot"])
         for kind, target in targets.items():
             os.replace(temps[kind], target)
     finally:

@@ -15,15 +15,17 @@ from harness import freefem, launcher, materials, petsc_plugin
 from harness.atomic import OLD_PREFIX, RUN_TEMP_PREFIX, write_atomic
 from harness.contract import Failure
 from harness.cache import cached_record, run_inputs, sha256_file, write_checksums
-from harness.errors import EnvironmentFault, RunError, SceneError
+from harness.errors import EnvironmentFault, HarnessError, RunError, SceneError
 from harness.gmsh_geometry import GmshGeometry
 from harness.faults import disk_full, space_for
+from harness.floating import floating_macros
 from harness.signals import CHILDREN, Interrupted
 from harness.layout import Layout
 from harness.mesh import coarser_meshes, family_levels
 from harness.record import RunRecord, read_run_json, write_run_json
 from harness.tresca import grip_warning
 from harness.scene import Scene
+from harness.regions import region_definitions
 from harness.script import main_script
 
 
@@ -68,17 +70,20 @@ class RunResult:
 
 
 def check_solver_files(scene: Scene, layout: Layout) -> None:
-    """Fail before meshing or running when the case names a material that is missing or
-    invalid (harness/materials.py) or the solver scripts are missing."""
-    wanted = layout.material_file(scene.material)
-    if not wanted.is_file():
-        library = layout.material_library()
-        available = ", ".join(sorted(p.stem for p in library.glob("*.idp"))) or "none"
-        raise SceneError(f"{scene.source}: unknown material {scene.material!r}: no file {wanted} "
-                         f"(available: {available} in {library}, or give a path to a .idp file)")
-    materials.check(wanted, layout.material_reduction_file())
+    """Fail before meshing or running when the solver scripts (--freefem) are not there, or
+    the case names a material that is missing or invalid (harness/materials.py)."""
+    if not layout.freefem.is_dir():
+        raise HarnessError(f"--freefem {layout.freefem}: the FreeFEM scripts directory does not exist")
     if not layout.scheme_file().is_file():
-        raise RunError(f"no solver script {layout.scheme_file()}")
+        raise HarnessError(f"--freefem {layout.freefem}: not a FreeFEM scripts directory (no {layout.scheme_file().name})")
+    for material in [scene.material] + [r.material for r in scene.regions]:
+        wanted = layout.material_file(material)
+        if not wanted.is_file():
+            library = layout.material_library()
+            available = ", ".join(sorted(p.stem for p in library.glob("*.idp"))) or "none"
+            raise SceneError(f"{scene.source}: unknown material {material!r}: no file {wanted} "
+                             f"(available: {available} in {library}, or give a path to a .idp file)")
+        materials.check(wanted, layout)
 
 
 def run_level(
@@ -101,6 +106,7 @@ class LevelRun:
     def __init__(self, scene: Scene, mesh: Path, n: int, layout: Layout, force: bool = False) -> None:
         check_solver_files(scene, layout)
         launcher.check_parallel(scene)
+        scene = launcher.level_scene(scene, n)  # on as many of run.ranks as the level can take
         self.scene, self.mesh, self.n, self.layout, self.force = scene, mesh, n, layout, force
         self.work: Path | None = None
         self.launched: freefem.Launched | None = None
@@ -253,10 +259,13 @@ def solver_inputs(
     On several ranks (run.ranks > 1) the text is the distributed scheme's, unless `sequential`.
     The coarser meshes the options name (a multigrid's levels, a coarse space) are made only
     with `make_meshes`: the cache key needs their names alone."""
-    macros = {**manufactured_macros(scene, layout), **scene.reference_macros()}
+    macros = {**manufactured_macros(scene, layout), **scene.reference_macros(), **scene.poling_macros(),
+              **floating_macros(scene.geometry)}
     parallel = launcher.ranks_of(scene).parallel and not sequential
     petsc = scene.linear_solver == "petsc"
+    definitions = region_definitions(scene.regions, layout, scene.dimension) if scene.regions else []
     text = main_script(scene.material, scene.effects, layout, element=scene.element, macros=macros,
+                       definitions=definitions,
                        linear_solver=scene.linear_solver, petsc_plugin=petsc_plugin.library() if petsc else None,
                        scheme=layout.freefem / launcher.PARALLEL_SCHEME if parallel else None,
                        dimension=scene.dimension)

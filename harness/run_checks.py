@@ -9,7 +9,7 @@ import sys
 from dataclasses import dataclass, field
 from typing import Any, Iterable, Mapping
 
-from harness.checks import CHECK_FLAGS, physical_checks
+from harness.checks import CHECK_FLAGS, SCENE_FLAGS, physical_checks
 from harness.errors import FieldsError
 from harness.fields import Fields, read_fields
 from harness.guards import max_displacement_gradient, small_strain_warning
@@ -25,6 +25,7 @@ SHOWN = {
     "open_flux_ok": ("heat_flux_open_error", "charge_flux_open_error"),
     "heat_ok": ("heat_imbalance",),
     "charge_ok": ("charge_imbalance",),
+    "floating_ok": ("floating_charge_error",),
 }
 
 # Check flag -> what to try when it fails (printed after its values).
@@ -35,6 +36,7 @@ ADVICE = {
     "open_flux_ok": "tighten newton.rtol: a flux through an open node is Newton's residual there",
     "heat_ok": "tighten newton.rtol: the balance is exact for a converged residual",
     "charge_ok": "tighten newton.rtol: the balance is exact for a converged residual",
+    "floating_ok": "tighten newton.rtol: the electrode's charge is its equation's residual",
 }
 
 # Check flag -> the run.json `checks` entries it cannot be judged without.
@@ -45,7 +47,13 @@ NEEDS = {
     "open_flux_ok": ("max_heat_flux_open", "max_charge_flux_open"),
     "heat_ok": ("heat_out_dirichlet",),
     "charge_ok": ("charge_out_dirichlet",),
+    "floating_ok": ("floating_charge",),
 }
+
+
+def flags_of(reported: Mapping[str, Any]) -> tuple[str, ...]:
+    """The checks of a run: every run's, and those of the parts its scene has (SCENE_FLAGS)."""
+    return CHECK_FLAGS + tuple(flag for flag in SCENE_FLAGS if all(key in reported for key in NEEDS[flag]))
 
 
 @dataclass(frozen=True)
@@ -75,8 +83,9 @@ def judge(record: RunRecord, scene: Scene) -> Judgement:
     if not reported:
         return Judgement(missing=CHECK_FLAGS)
     values = physical_checks(record, scene)  # every quantity FreeFEM's (checks.idp)
-    missing = tuple(flag for flag in CHECK_FLAGS if not all(key in reported for key in NEEDS[flag]))
-    failed = tuple(flag for flag in CHECK_FLAGS if not values.get(flag) and flag not in missing)
+    flags = flags_of(reported)
+    missing = tuple(flag for flag in flags if not all(key in reported for key in NEEDS[flag]))
+    failed = tuple(flag for flag in flags if not values.get(flag) and flag not in missing)
     values["checks_ok"] = not failed
     return Judgement(values, failed, missing)
 
@@ -103,7 +112,7 @@ def check_run(scene: Scene, run: RunResult, fields: Fields | None = None) -> Che
     if not judged.reported:
         return Checked(run.n, f"checks n={run.n}: none reported by the solver", True, tuple(warnings))
     if judged.passed:
-        done = [f[:-3] for f in CHECK_FLAGS if f not in judged.missing]
+        done = [f[:-3] for f in flags_of(run.record.checks) if f not in judged.missing]
         note = f"; not reported: {', '.join(f[:-3] for f in judged.missing)}" if judged.missing else ""
         return Checked(run.n, f"checks n={run.n}: pass ({', '.join(done)}){note}", True, tuple(warnings))
     values = judged.values

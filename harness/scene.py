@@ -3,6 +3,7 @@
 from __future__ import annotations
 
 import copy
+import dataclasses
 import hashlib
 import math
 import tomllib
@@ -12,14 +13,18 @@ from typing import Any, Iterable
 
 from harness.electrodes import check_electrodes
 from harness.errors import SceneError
+from harness.floating import check_floating
 from harness.petsc_plugin import default_options, factorising, multigrid
 from harness.box import Box, parse_box
-from harness.gmsh_geometry import GmshGeometry, check_poling, parse_gmsh
+from harness.gmsh_geometry import GmshGeometry, parse_gmsh
+from harness.poling import Poling, default_axis, parse_poling
+from harness.regions import Region, any_rotated, check_regions, regions_of
 from harness.schema import (EFFECTS, REQUIRED, SCHEMA, SOLVER_SECTIONS, Key, effect_of, geometry_keys,
-                            is_material_path, unread_by_law)
+                            is_material_path, unbounded_keys, unread_by_law)
 from harness.sections import sections_of
 from harness.segments import Geometry, parse_geometry
 from harness.unknowns import Unknowns
+from harness.well_posed import check_fixed
 
 
 @dataclass(frozen=True)
@@ -49,7 +54,28 @@ class Scene:
 
     @property
     def material(self) -> str:
-        return self.sections.scene.material
+        """The one material, or with regions the first region's (its constants set the
+        scheme's scales, freefem/scaling.idp)."""
+        return self.sections.scene.material or self.regions[0].material
+
+    @property
+    def regions(self) -> tuple[Region, ...]:
+        """The material regions in the mesh's label order; empty for a one-material scene."""
+        return regions_of(self.sections.scene.materials, getattr(self.geometry, "regions", ()),
+                          self.sections.scene.poling_axis, self.dimension)
+
+    def poling_macros(self) -> dict[str, str]:
+        """The poling macros of main.edp: the scene's axis for one material; with regions the
+        default axis written out when any region is rotated (the law then has the rotated
+        terms, each region's values come from harness/regions.py), else none."""
+        if not self.regions:
+            return self.poling.macros()
+        return Poling(default_axis(self.dimension)).macros(always=True) if any_rotated(self.regions) else {}
+
+    @property
+    def poling(self) -> Poling:
+        """The material's axis 3 in the scene's coordinates (checked when the scene loads)."""
+        return parse_poling(self.sections.scene.poling_axis, self.dimension)
 
     @property
     def effects(self) -> tuple[str, ...]:
@@ -132,6 +158,9 @@ class Scene:
         so that editing levels or the band does not invalidate cached runs."""
         return {
             "material": self.material,
+            **({"materials": [[r.name, r.material, list(r.poling.axis)] for r in self.regions]} if self.regions else {}),
+            # Only a rotated poling joins the key: the default one leaves earlier keys as they were.
+            **({} if self.poling.is_default else {"poling_axis": list(self.poling.axis)}),
             "initial_guess": self.initial_guess,
             "element": self.element,
             "linear_solver": self.linear_solver,
@@ -145,6 +174,15 @@ class Scene:
             **({"manufactured": self.manufactured} if self.manufactured else {}),
             **({"reference_sha256": sha256_file(self.reference_state)} if self.reference_state else {}),
         }
+
+    def on_ranks(self, count: int) -> Scene:
+        """The same scene solved on `count` MPI ranks (run.ranks): a level of a chain too
+        small for the scene's ranks runs on fewer (harness/launcher.py level_scene)."""
+        if count == self.sections.run.ranks:
+            return self
+        table = {**self.table, "run": {**self.table["run"], "ranks": count}}
+        sections = dataclasses.replace(self.sections, run=dataclasses.replace(self.sections.run, ranks=count))
+        return dataclasses.replace(self, table=table, sections=sections)
 
     @property
     def reference_state(self) -> str:
@@ -174,7 +212,12 @@ def load_scene(path: Path, overrides: Iterable[str] = ()) -> Scene:
         geometry = parse_any_geometry(table, path.parent)
         if "piezoelectric" in table["scene"]["effects"]:
             check_electrodes(geometry.parts(), max(geometry.width, geometry.height))
-        check_poling(table["scene"]["poling_axis"], getattr(geometry, "dimension", 2))
+        parse_poling(table["scene"]["poling_axis"], getattr(geometry, "dimension", 2))
+        regions = check_regions(table["scene"]["materials"], table["scene"]["material"], geometry)
+        if regions:
+            geometry = dataclasses.replace(geometry, regions=regions)
+        check_fixed(geometry, table["scene"]["effects"], table)
+        check_floating(table, geometry)
         check_expect(table["expect"])
     except SceneError as exc:
         raise SceneError(f"{path}: {exc}") from None  # every case-file error names the file
@@ -259,6 +302,8 @@ def checked(name: str, spec: Key, value: Any) -> Any:
     value = coerced(name, spec.kind, value)
     if isinstance(value, float) and math.isnan(value):
         raise SceneError(f"{name} = nan is not a number")
+    if isinstance(value, float) and math.isinf(value) and not spec.unbounded:
+        raise SceneError(f"{name} = {value} must be a finite number (only {', '.join(unbounded_keys())} may be inf)")
     complaint = spec.check(value) if spec.check else None
     if complaint:
         raise SceneError(f"{name} = {value!r} {complaint}")

@@ -10,7 +10,7 @@ import math
 from dataclasses import dataclass
 from typing import Any, Callable
 
-from harness.contract import ROLE_LABELS  # noqa: F401  (re-exported: the roles a scene may name)
+from harness.contract import FLOATING_CHARGES, ROLE_LABELS  # noqa: F401  (ROLE_LABELS re-exported: the roles a scene may name)
 
 # Sections passed verbatim to FreeFEM as `-<section>.<key> <value>`.
 SOLVER_SECTIONS = ("loads", "contact", "electric_contact", "thermal_contact", "newton")
@@ -30,6 +30,9 @@ class Key:
     kind: type
     default: Any = REQUIRED
     check: Check | None = None
+    # What an infinite value means, for the few keys where it is data ("none"); blank: a
+    # number must be finite (inf is refused like nan, never passed on as a huge number).
+    unbounded: str = ""
 
     @property
     def required(self) -> bool:
@@ -117,6 +120,7 @@ DATA_EFFECT: dict[tuple[str, str | None], str] = {
     ("loads", "surface_charge"): "piezoelectric",
     ("loads", "charge_density"): "piezoelectric",
     ("loads", "electrode_potential"): "piezoelectric",
+    **{("loads", key): "piezoelectric" for key in FLOATING_CHARGES.values()},
     ("loads", "heat_source"): "thermal",
 }
 
@@ -161,7 +165,11 @@ SCHEMA: dict[str, dict[str, Key]] = {
     "scene": {
         "name": Key(str, check=safe_name),
         "description": Key(str, ""),
-        "material": Key(str, check=material_reference),
+        # One material for the whole body, or blank with [scene.materials] (harness/regions.py).
+        "material": Key(str, "", check=lambda v: material_reference(v) if v else None),
+        # [scene.materials]: a gmsh scene's named body groups (surfaces in 2D, volumes in 3D)
+        # = material, one entry per group; the scene.material shorthand left blank.
+        "materials": Key(object, {}),
         "effects": Key(list, list(EFFECTS), effect_list),
         # zero | pressed: Newton's start on every level; coarser: each level starts from
         # the solution of the next coarser level (the coarsest from `coarsest_guess`),
@@ -170,8 +178,8 @@ SCHEMA: dict[str, dict[str, Key]] = {
         "coarsest_guess": Key(str, "zero", one_of("zero", "pressed")),
         "initial_mesh": Key(str, ""),
         "initial_state": Key(str, ""),
-        # The material's axis 3 (poling): blank or the default axis only, y in 2D and z in 3D,
-        # named or as a unit vector (harness/gmsh_geometry.py check_poling).
+        # The material's axis 3 (poling): blank for the default (y in 2D, z in 3D), a named
+        # axis with a sign ("x", "-z") or a vector, in-plane in 2D (harness/poling.py).
         "poling_axis": Key(object, ""),
     },
     "geometry": {
@@ -193,6 +201,10 @@ SCHEMA: dict[str, dict[str, Key]] = {
             "body_force_y", "body_force_z", "charge_density", "heat_source",
             # phi on the parts whose role is `electrode` [V] (the `ground` parts hold 0)
             "electrode_potential",
+            # the net free charge on the parts whose role is `floating` [C/m in 2D, C in 3D]:
+            # one open conductor at a uniform, unknown potential (docs/model.md); _2, _3:
+            # those of the roles floating_2, floating_3, two more conductors
+            *FLOATING_CHARGES.values(),
         )
     },
     "contact": {
@@ -211,7 +223,7 @@ SCHEMA: dict[str, dict[str, Key]] = {
         "k_e": Key(float, check=nonnegative),
         "eps_e": Key(float, check=positive),
         "phi_f": Key(float),
-        "L": Key(float, check=positive),
+        "L": Key(float, check=positive, unbounded="no truncation: phi_L is the identity"),
     },
     "thermal_contact": {
         "k_c": Key(float, check=nonnegative),
@@ -309,6 +321,11 @@ GMSH_GEOMETRY: dict[str, Key] = {
     # from; 0: the smallest of study.levels.
     "coarsest": Key(int, 0, nonnegative),
 }
+
+
+def unbounded_keys() -> list[str]:
+    """The keys an infinite value is documented for ("section.key")."""
+    return [f"{section}.{key}" for section, keys in SCHEMA.items() for key, spec in keys.items() if spec.unbounded]
 
 
 def geometry_keys(given: dict[str, Any]) -> dict[str, Key]:

@@ -8,7 +8,7 @@ Extra macros (a manufactured solution's data, for instance) come in the same way
 from __future__ import annotations
 
 from pathlib import Path
-from typing import Mapping
+from typing import Mapping, Sequence
 
 from harness.contract import contract_path
 from harness.layout import Layout
@@ -31,8 +31,10 @@ def main_script(
     dimension: int = 2,
     scheme: Path | None = None,
     petsc_plugin: Path | None = None,
+    definitions: Sequence[str] = (),
 ) -> str:
-    """`petsc_plugin`: the built plugin (harness/petsc_plugin.py), for linear_solver "petsc"."""
+    """`petsc_plugin`: the built plugin (harness/petsc_plugin.py), for linear_solver "petsc";
+    `definitions`: FreeFEM lines written as they are after the macros (material regions)."""
     lines = ["// Written by the harness (harness/script.py); edit the scene, not this file."]
     plugin, name = LINEAR_SOLVERS[linear_solver]
     if linear_solver == "petsc":
@@ -53,6 +55,7 @@ def main_script(
     for name, body in (macros or {}).items():
         # "NAME (body)" would read as a macro with parameters; "NAME() (body)" is used bare.
         lines.append(f"macro {name}() ({body}) //")
+    lines += definitions
     # FreeFEM's include takes a literal file name; nested includes resolve next to the includer.
     includes: list[Path] = [contract_path(), layout.material_file(material)]
     if layout.material_reduction_file().is_file():

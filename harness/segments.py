@@ -54,7 +54,16 @@ class Geometry:
                     & (points[:, 0] <= seg.x1 + 1e-12)
         return on
 
-    def bodies(self) -> tuple[Body, ...]:
+    def used_roles(self) -> frozenset[str]:
+        return frozenset(self.role_lengths())
+
+    def contact_normals(self) -> np.ndarray:
+        """The normal axis of each side holding contact (rows)."""
+        normals = [[0.0, 1.0] for side in (self.bottom, self.top) if any(s.role == "contact" for s in side)]
+        normals += [[1.0, 0.0] for role in (self.left, self.right) if role == "contact"]
+        return np.array(normals, dtype=float).reshape(-1, 2)
+
+    def body_parts(self) -> tuple[Body, ...]:
         return (Body("the rectangle", (0.0, 0.0), (self.width, self.height)),)
 
     def parts(self) -> tuple[Part, ...]:

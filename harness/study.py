@@ -72,7 +72,7 @@ def run_study(
     solutions = {n: read_fields(run.solution) for n, run in runs.items()}
     table = error_table(runs, fields, solutions)
     warnings = tuple(line for n, f in sorted(solutions.items())
-                     for line in thin_warnings(scene.geometry.bodies(), n, f.points, f.cells))
+                     for line in thin_warnings(scene.geometry.body_parts(), n, f.points, f.cells))
     for line in warnings:
         print(f"warning: {line}", file=sys.stderr, flush=True)
     return Study(scene, fields, table, slopes(table, fields), runs, time.perf_counter() - start, solutions, warnings)

@@ -108,7 +108,9 @@ class Unknowns:
         kept = {(r, c) for r, c in blocks if self.staggered and "t" in (r, c)}
 
         def assemble(which: set[tuple[str, str]]) -> str:
-            return " ".join(f"matrix K{r}{c} = vK{r}{c}({space[c]}, {space[r]});" for r, c in sorted(which))
+            # Each block's time and peak memory go to the run's profile (freefem/profile.idp).
+            return " ".join(f"matrix K{r}{c} = vK{r}{c}({space[c]}, {space[r]}); "
+                            f'tProfile = profileAdd("bulk block K{r}{c}", tProfile);' for r, c in sorted(which))
         kept_blocks, bulk_blocks = assemble(kept), assemble(blocks - kept)
         # A staggered theta is a load on the Newton fields through their blocks K_rt.
         staggered = " ".join(f"real[int] k{r}t = K{r}t * th[]; b{r} -= k{r}t;"

@@ -18,6 +18,7 @@ import numpy as np
 import pandas as pd
 
 from harness.atomic import sibling_temp, write_atomic
+from harness.faults import naming
 
 CSV_FORMAT = "%.6g"  # summary tables: what a reader compares by eye
 PRECISE_CSV_FORMAT = "%.10g"  # convergence tables: errors whose slopes are fitted again
@@ -69,7 +70,8 @@ def write_with(render: Callable[[Path], None], path: Path) -> bool:
     path.parent.mkdir(parents=True, exist_ok=True)
     tmp = sibling_temp(path)
     try:
-        render(tmp)
+        with naming(path):
+            render(tmp)
         if not tmp.exists():
             return False
         tmp.replace(path)

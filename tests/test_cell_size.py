@@ -79,6 +79,6 @@ def test_a_gmsh_part_drawn_in_pieces_is_one_part():
     from harness.layout import REPO
     from harness.scene import load_scene
 
-    [part] = load_scene(REPO / "cases" / "cantilever.toml").geometry.bodies()
+    [part] = load_scene(REPO / "cases" / "cantilever.toml").geometry.body_parts()
     assert part.name == "cantilever.geo: physical surface 'PZT-5H'"
     assert part.lo == pytest.approx((0.0, 0.0), abs=1e-9) and part.hi == pytest.approx((0.02, 0.001), rel=1e-9)

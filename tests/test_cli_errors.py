@@ -54,11 +54,67 @@ def test_an_unknown_material_fails_before_anything_is_made(capsys, stub_layout, 
     assert not stub_layout.results.exists()
 
 
+@pytest.mark.parametrize("study", [["solve", "--n", "2"], ["convergence", "--levels", "2,4,8"], ["cost"]])
+def test_a_missing_freefem_scripts_directory_is_named(capsys, tmp_path, paper_case, study):
+    # It said "unknown material 'BaTiO3'" (and cost ignored --freefem altogether).
+    missing = tmp_path / "nonexistent"
+    code = main([study[0], str(paper_case), *study[1:], "--results", str(tmp_path / "results"),
+                 "--freefem", str(missing)])
+    assert code == 2
+    one_error_line(capsys.readouterr().err.strip().splitlines(),
+                   f"--freefem {missing}: the FreeFEM scripts directory does not exist")
+    assert not (tmp_path / "results").exists()
+
+
+def test_a_freefem_directory_without_the_scheme_is_named(capsys, tmp_path, paper_case):
+    code = main(["solve", str(paper_case), "--n", "2", "--results", str(tmp_path / "results"),
+                 "--freefem", str(tmp_path)])
+    assert code == 2
+    one_error_line(capsys.readouterr().err.strip().splitlines(), f"--freefem {tmp_path}: not a FreeFEM scripts "
+                   "directory (no scheme.idp)")
+
+
 def test_a_bad_set_key(capsys, stub_layout, paper_case):
     # (contact.mu exists since Coulomb friction: a static coefficient does not.)
     code, err, _ = solve(capsys, stub_layout, paper_case, "--set", "contact.mu_static=0.3")
     assert code == 2
     one_error_line(err, "contact.mu_static")
+
+
+@pytest.mark.parametrize("override", ["electric_contact.k_e=inf", "thermal_contact.theta_f=inf",
+                                      "loads.traction_y=inf", "contact.c_nu=inf"])
+def test_inf_is_bad_input_before_anything_is_made(capsys, stub_layout, paper_case, override):
+    code, err, _ = solve(capsys, stub_layout, paper_case, "--set", override)
+    assert code == 2
+    one_error_line(err, override.partition("=")[0], "finite")
+    assert not stub_layout.results.exists()
+
+
+@pytest.mark.parametrize("address", ["notaurl", "tcp://localhost", "http://localhost:8786", "", " ", "tcp://:8786",
+                                     "tcp://localhost:0", "tcp://localhost:99999"])
+@pytest.mark.parametrize("study", ["stress", "scenes", "branches"])
+def test_a_bad_scheduler_address_is_one_line_before_anything_runs(capsys, tmp_path, study, address):
+    # It was a ValueError traceback from Dask (exit 1), and "" silently ran in this process.
+    with pytest.raises(SystemExit) as info:
+        main([study, "--scheduler", address, "--results", str(tmp_path / "results")])
+    assert info.value.code == 2
+    one_error_line(capsys.readouterr().err.strip().splitlines(), "--scheduler", repr(address),
+                   "SCHEME://HOST:PORT")
+    assert not (tmp_path / "results").exists()
+
+
+def test_an_empty_cluster_is_refused_too(capsys, tmp_path):
+    with pytest.raises(SystemExit) as info:
+        main(["stress", "--cluster", "", "--results", str(tmp_path / "results")])
+    assert info.value.code == 2
+    one_error_line(capsys.readouterr().err.strip().splitlines(), "--cluster", "local:N")
+
+
+@pytest.mark.parametrize("address", ["tcp://127.0.0.1:8786", "tls://scheduler.example:8786", "tcp://[::1]:8786"])
+def test_a_scheduler_address_with_scheme_host_and_port_is_taken(address):
+    from harness.executor import scheduler_address
+
+    assert scheduler_address(address) == address
 
 
 @pytest.mark.parametrize("argv", [["convergence", "x.toml", "--levels", "2,x"], ["solve", "x.toml"], ["nope"]])

@@ -150,3 +150,14 @@ def test_a_coulomb_scene_is_refused_in_one_line_not_compared_with_tresca(case, t
     err = capsys.readouterr().err.strip().splitlines()
     assert code == ExitCode.INPUT and len(err) == 1, err
     assert case in err[0] and "Tresca friction only" in err[0] and "'coulomb'" in err[0]
+
+
+def test_a_rotated_poling_is_refused_in_one_line_not_compared(tmp_path, capsys):
+    """The peer takes the material file's tensors unrotated: a scene poled along x would be
+    compared with one poled along y and reported as a disagreement."""
+    code = cli.main(["crosscheck", str(CASES / "paper.toml"), "--levels", "2", "--results", str(tmp_path),
+                     "--set", 'scene.poling_axis="x"'])
+    err = capsys.readouterr().err.strip().splitlines()
+    assert code == ExitCode.INPUT and len(err) == 1, err
+    assert "paper.toml" in err[0] and "default poling axis only" in err[0] and "'x'" in err[0]
+    assert not any(tmp_path.iterdir())

@@ -89,3 +89,52 @@ def test_a_2d_mesh_below_gmshloads_area_threshold_is_read(tmp_path):
     assert area.max() < 1e-8
     assert area.sum() == pytest.approx(35e-3 * 0.7e-3, rel=1e-6)  # single-precision coordinates
     assert run.record.converged
+
+
+def sensor_voltage_bounds(force: float, area: float, thickness: float) -> tuple[float, float]:
+    """The open-circuit voltage of a pressed PZT-5H plate (docs/model.md "Floating electrodes"):
+    laterally held, -e33 t F / ((C33 beta33 + e33^2) A), and laterally free, the plate formula
+    -g33 t F / A with g33 = d33 / eps33^T, d3 = C^-1 e3 and eps33^T = beta33 + e3 . C^-1 . e3."""
+    held = -E3[2] * thickness * force / ((C[2, 2] * BETA33 + E3[2] ** 2) * area)
+    d3 = np.linalg.solve(C, E3)
+    free = -d3[2] / permittivity_bounds(3)[1] * thickness * force / area
+    return held, free
+
+
+def test_the_force_sensor_reads_between_the_held_and_the_free_plate(tmp_path):
+    """cases/force_sensor.toml: 10 N on a 10 x 1 mm disc bonded to an earthed base, read by a
+    floating electrode. The base holds the disc laterally near it, the top is free: the voltage
+    lies between the two plate values (-1.445 V, -2.502 V) and moves from the held one towards
+    the free one as the mesh resolves the free rim (measured -1.713, -1.795, -1.837 V at
+    n = 2, 4, 8), with the electrode's charge 0 to round-off."""
+    for n in (2, 4):   # each level from zero (a linear scene): two solves
+        solve(CASES / "force_sensor.toml", n, tmp_path)
+    runs = levels(tmp_path, "force_sensor")
+    area = 16 * 5e-3**2 * np.sin(2 * np.pi / 32)   # cases/devices/sensor.geo: the 32-gon
+    force = 1.2815e5 * area                          # loads.traction_z: 10.00 N
+    held, free = sensor_voltage_bounds(force, area, 1e-3)
+    volts = {n: run["checks"]["floating_potential"][0] for n, run in runs.items()}
+    for n, run in runs.items():
+        assert free < volts[n] < held, n
+        assert run["checks"]["applied_load"][2] == pytest.approx(-force, rel=1e-12)
+        assert abs(run["checks"]["floating_charge"][0]) < 1e-12 * run["checks"]["floating_charge_reading"][0], n
+    assert volts[4] < volts[2]
+
+
+def test_the_force_sensor_is_linear_in_its_force(tmp_path):
+    """Twice the pressure, twice the voltage (the scene is linear: no contact)."""
+    one = solve(CASES / "force_sensor.toml", 2, tmp_path)
+    two = solve(CASES / "force_sensor.toml", 2, tmp_path, "loads.traction_z=-2.563e5", "scene.name=twice")
+    assert two.record.checks["floating_potential"][0] == pytest.approx(2 * one.record.checks["floating_potential"][0], rel=1e-12)
+
+
+def test_the_sensor_picture_shows_the_top_face_displacement(tmp_path):
+    """Both faces of the sensor hold one potential each (earthed base, floating electrode): the
+    face panel shows what varies there, u_z on the top face, not round-off of phi."""
+    from harness.device_plot import face_panel, render
+
+    run = solve(CASES / "force_sensor.toml", 2, tmp_path)
+    title, label, nodes, shown = face_panel(run.fields, "phi", "V")
+    assert title == "u_z on the top face" and label == "u_z [m]" and np.ptp(shown[nodes]) > 0
+    render(tmp_path / "force_sensor" / "n2", tmp_path / "fields.png")
+    assert (tmp_path / "fields.png").stat().st_size > 10_000

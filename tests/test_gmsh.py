@@ -176,8 +176,8 @@ BAD = {
     "a 3D file for a 2D scene": ({"geo/paper.geo": "geo/block3d.geo"}, None, "draws a 3D body but geometry.dimension = 2"),
     "an unnamed boundary part": ({'top_free = "free"\n': ""}, {'Physical Curve("top_free") = {4, 6};': ""},
                                  "is in no named part"),
-    "a rotated poling axis": ({'coarsest_guess = "zero"': 'coarsest_guess = "zero"\npoling_axis = "x"'}, None,
-                              "only the default axis is supported"),
+    "a poling axis of zero length": ({'coarsest_guess = "zero"': 'coarsest_guess = "zero"\npoling_axis = [0.0, 0.0]'},
+                                     None, "scene.poling_axis = [0.0, 0.0] has zero length"),
     "remesh of a file that fixes its mesh": ({'levels = "split"': 'levels = "remesh"'}, None,
                                              "so remesh cannot refine it"),
     "quadrilaterals": (None, {"Transfinite Curve{7:10}": "Recombine Surface{1:3};\nTransfinite Curve{7:10}"},
@@ -229,6 +229,11 @@ def test_the_poling_axis_may_be_named_or_given_as_the_default_unit_vector():
     for value in ('"y"', "[0.0, 2.0]"):
         assert load_scene(CASES / "paper_gmsh.toml", [f"scene.poling_axis={value}"]).dimension == 2
     assert load_scene(CASES / "paper3d_gmsh.toml", ['scene.poling_axis=[0, 0, 1]']).dimension == 3
+
+
+def test_a_gmsh_scene_may_be_poled_along_any_axis():
+    assert load_scene(CASES / "paper_gmsh.toml", ['scene.poling_axis="x"']).poling.axis == (1.0, 0.0)
+    assert load_scene(CASES / "paper3d_gmsh.toml", ['scene.poling_axis="-z"']).poling.axis == (0.0, 0.0, -1.0)
 
 
 def test_a_role_added_to_the_contract_flows_through_to_the_mesh_labels(tmp_path, monkeypatch):

@@ -264,10 +264,10 @@ def test_freefem_errors_agree_with_an_independent_quadrature(coarse_studies, cas
 # One wrong sign or factor per term the manufactured cases check; each still converges
 # (Newton finds a solution), but to the solution of another problem.
 MUTATIONS = {
-    "pyroelectric sign (D3)": ("bulk", "constitutive.idp", "macro DT3(th) (-p3 * Theta * (th))",
-                               "macro DT3(th) (p3 * Theta * (th))"),
-    "shear piezoelectric sign (D1)": ("bulk", "constitutive.idp", "macro DU1(u) (e15 * eps5(u))",
-                                      "macro DU1(u) (-e15 * eps5(u))"),
+    "pyroelectric sign (D3)": ("bulk", "constitutive.idp", "macro DT3(th) (-mat(p3) * Theta * (th))",
+                               "macro DT3(th) (mat(p3) * Theta * (th))"),
+    "shear piezoelectric sign (D1)": ("bulk", "constitutive.idp", "macro DU1(u) (mat(e15) * eps5(u)",
+                                      "macro DU1(u) (-mat(e15) * eps5(u)"),
     "penalty factor": ("contact", "forms.idp", "(normalPressure(gapS(u)) * vnu(v)",
                        "(0.5 * normalPressure(gapS(u)) * vnu(v)"),
     "Tresca bound": ("contact", "forms.idp", "projScale(wNorm(u), frictionBound(u)) * cnu * U * tauDot(u, v)",

@@ -110,6 +110,7 @@ SIGN_FLIPS = [
     ("macro DU1(u1, u2) (e15 * gam13(u1, u2))", "macro DU1(u1, u2) (-e15 * gam13(u1, u2))"),
     ("(e15 * gam13(u1, u2) - b11", "(-e15 * gam13(u1, u2) - b11"),
     ("macro DU1(u) (e15 * eps5(u))", "macro DU1(u) (-e15 * eps5(u))"),
+    ("macro DU1(u) (mat(e15) * eps5(u)", "macro DU1(u) (-mat(e15) * eps5(u)"),
 ]
 
 

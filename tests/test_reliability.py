@@ -292,6 +292,52 @@ def test_a_full_disk_while_writing_the_report_keeps_the_earlier_one(capsys, tmp_
     assert atomic.mixed_levels(case) == []
 
 
+# A write() or close() that fails on a full disk raises an OSError with no file name: the
+# line said "cannot write: no space left on the device", not where.
+NAMELESS_FULL = OSError(errno.ENOSPC, os.strerror(errno.ENOSPC))
+
+
+@pytest.mark.parametrize("writer, file", [("plot_convergence", "convergence.png"), ("csv_text", "convergence.csv")])
+def test_a_full_disk_while_writing_the_report_names_the_file(capsys, tmp_path, monkeypatch, writer, file):
+    from harness import report
+
+    def full(*args, **kwargs):
+        raise OSError(*NAMELESS_FULL.args)
+
+    monkeypatch.setattr(report, writer, full)
+    code, err, _ = run(capsys, tmp_path / "results", "convergence", str(STUB_CASE), "--levels", "2,4,8")
+    assert code == 4
+    line = one_error(err, "no space left on the device", str(tmp_path / "results" / "paper" / file))
+    assert ".tmp" not in line  # the file the user knows, not its hidden temp name
+
+
+def test_a_full_disk_in_an_atomic_write_names_the_file(tmp_path, monkeypatch):
+    """Every table, Markdown and JSON file of the studies goes through write_atomic."""
+    from harness.faults import fault
+    from harness.writers import write_json
+
+    def full(self, *args, **kwargs):
+        raise OSError(*NAMELESS_FULL.args)
+
+    monkeypatch.setattr(Path, "write_text", full)
+    with pytest.raises(OSError) as info:
+        write_json({"a": 1}, tmp_path / "table.json")
+    assert str(fault(info.value)) == f"cannot write {tmp_path / 'table.json'}: no space left on the device"
+
+
+def test_a_nameless_os_error_in_a_report_names_the_study_directory(tmp_path):
+    """Any other writer of a study's report: the directory the study writes is named."""
+    from harness.faults import fault
+    from harness.pipeline import Plan, run_pipeline
+
+    def report(_: object) -> None:
+        raise OSError(*NAMELESS_FULL.args)
+
+    with pytest.raises(OSError) as info:
+        run_pipeline(Plan(tmp_path, outputs=(tmp_path / "study",)), lambda: None, report)
+    assert str(fault(info.value)) == f"cannot write {tmp_path / 'study'}: no space left on the device"
+
+
 # ---- 4, 6, cache keys ----------------------------------------------------------------------
 
 def test_a_change_to_the_generated_script_is_a_cache_miss(capsys, tmp_path, monkeypatch):

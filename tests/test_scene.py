@@ -138,6 +138,14 @@ def test_tresca_still_needs_its_bound(tmp_path):
         ("geometry.left=hinged", "geometry.left"),
         ("scene.name=../escape", "scene.name"),
         ("contact.gap=nan", "contact.gap"),
+        # inf is data only where documented (electric_contact.L); elsewhere it used to pass
+        # as 1e300 (a contact force of 1e-256, exit 0) or fail late in FreeFEM.
+        ("thermal_contact.theta_f=inf", "thermal_contact.theta_f"),
+        ("electric_contact.k_e=inf", "electric_contact.k_e"),
+        ("loads.traction_y=inf", "loads.traction_y"),
+        ("loads.traction_y=-inf", "loads.traction_y"),
+        ("contact.c_nu=inf", "contact.c_nu"),
+        ("run.timeout_s=inf", "run.timeout_s"),
     ],
 )
 def test_non_physical_values_are_errors_naming_the_key(paper_case, override, key):
@@ -196,3 +204,17 @@ def test_study_settings_do_not_enter_the_run_inputs(paper_case):
     b = load_scene(paper_case, ["study.levels=[2, 4]", "study.slope_band=[0, 9]"]).run_inputs()
     c = load_scene(paper_case, ["contact.S=0"]).run_inputs()
     assert a == b and a != c
+
+
+def test_inf_in_a_case_file_is_refused_naming_file_and_key(paper_case, tmp_path):
+    case = edited(paper_case, tmp_path, "theta_f = 373.0", "theta_f = inf")
+    with pytest.raises(SceneError, match=r"case\.toml: thermal_contact\.theta_f = inf must be a finite number"):
+        load_scene(case)
+
+
+def test_only_the_truncation_may_be_infinite():
+    """One rule in the schema: a key takes inf only when it says what inf means."""
+    from harness.schema import SCHEMA, unbounded_keys
+
+    assert unbounded_keys() == ["electric_contact.L"]
+    assert "no truncation" in SCHEMA["electric_contact"]["L"].unbounded

@@ -3,7 +3,7 @@ estimate, in 2D (docs/adaptivity.md), into results/adapt/<case>/.
 
 Each step solves on the refinement of the step before: Dörfler marking of the recovery
 estimate (--bulk), newest-vertex bisection. The true error of every step, and of the case's
-uniform levels, is measured against one overkill reference (the last mesh bisected twice),
+uniform levels, is measured against one overkill reference (the last mesh bisected uniformly),
 or against the exact fields of a manufactured case.
 Writes adapt.csv (per step: dofs, the estimate and the error per field, Newton iterations,
 time, memory, mesh quality), uniform.csv, summary.json (rates in N per field: 0.5 is

@@ -93,5 +93,5 @@ def run(args: argparse.Namespace) -> int:
         print("wrote " + ", ".join(str(p) for p in written))
 
     run_pipeline(plan, lambda: run_cost(args.case, levels, args.discretisations, reference, scaling, args.overrides,
-                                        args.results, args.force), report)
+                                        args.results, args.force, scripts=args.freefem), report)
     return 0

@@ -19,6 +19,7 @@ from harness.crosscheck import TOLERANCE, differences, integral_differences
 from harness.engine import InlineMeshes, quiet, run_levels, runs_of
 from harness.errors import Disagreement, FieldsError, RunError, SceneError
 from harness.fields import Fields, read_fields
+from harness.floating import floating_macros
 from harness.layout import Layout
 from harness.pipeline import Guarded, Plan, run_pipeline
 from harness.norm_table import MEASURE
@@ -112,6 +113,13 @@ def plans_of(case: Path, overrides: list[str], branches: list[str] | None,
     law = base.sections.contact.friction_law if "friction" in base.effects else "tresca"
     if law != "tresca":  # the peer's friction is Tresca's ball (peer_getfem/terms.py)
         raise SceneError(f"{case}: the GetFEM peer solves Tresca friction only, not contact.friction_law = {law!r}")
+    if floating_macros(base.geometry):  # the peer has no floating electrode: unsupported, not a disagreement
+        raise SceneError(f"{case}: the GetFEM peer has no floating electrode (a part with the role 'floating')")
+    if base.regions:  # the peer takes one material file (harness/peer.py)
+        raise SceneError(f"{case}: the GetFEM peer solves one material, not the regions of [scene.materials]")
+    if not base.poling.is_default:  # the peer reads the material file's tensors as they are (harness/peer.py)
+        raise SceneError(f"{case}: the GetFEM peer solves the default poling axis only, not scene.poling_axis = "
+                         f"{base.sections.scene.poling_axis!r}")
     own = base.sections.scene.coarsest_guess if base.initial_guess == "coarser" else base.initial_guess
     out = []
     for start in branches or [own]:

@@ -55,7 +55,7 @@ def solve(scene: Scene, n: int, layout: Layout, force: bool, ignore_memory: bool
     def report(result: RunResult) -> None:
         print(describe_run(scene.name, result.record, result.directory, result.reused))
         parsed[n] = fields = read_fields(result.solution)
-        for line in thin_warnings(scene.geometry.bodies(), n, fields.points, fields.cells):
+        for line in thin_warnings(scene.geometry.body_parts(), n, fields.points, fields.cells):
             print(f"warning: {line}", file=sys.stderr)
 
     def verdict(result: RunResult) -> str | None:
@@ -68,12 +68,17 @@ def solve(scene: Scene, n: int, layout: Layout, force: bool, ignore_memory: bool
 def describe_run(case: str, record: RunRecord, directory: Path, reused: bool) -> str:
     r = record
     state = "converged" if r.converged else f"NOT converged ({r.reason})"
+    c = r.checks or {}
+    floating = [f"  floating electrode {k + 1} at {fmt(volts)} V, charge {fmt(charge)} (given {fmt(given)})"
+                for k, (volts, charge, given) in enumerate(zip(c.get("floating_potential", []), c.get("floating_charge", []),
+                                                               c.get("floating_charge_given", [])))]
     return "\n".join([
         f"{case} n={r.n}: {state} in {r.newton_iterations} Newton iterations"
         f" (initial guess {r.initial_guess}){' [reused]' if reused else ''}",
         f"  dofs {r.dofs}, wall {fmt(r.wall_s)} s (assembly {fmt(r.assembly_s)} s, solves {fmt(r.solve_s)} s)",
         f"  max theta {fmt(r.max_theta)}, phi in [{fmt(r.min_phi)}, {fmt(r.max_phi)}], max |u| {fmt(r.max_abs_u)}",
         f"  contact force {fmt(r.contact_force)}, closed part of Gamma_3 {fmt(r.active_measure)}",
+        *floating,
         f"  results in {directory}",
     ])
 

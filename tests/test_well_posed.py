@@ -1,0 +1,89 @@
+"""A scene whose data cannot fix u (a rigid motion), phi or theta (a constant) is refused when
+it loads, with one line and exit code 2, by one rule for the rectangle, the box and gmsh
+scenes (harness/well_posed.py). Before the rule only gmsh scenes were checked: a rectangle
+with both ends free ran into Newton's maximum (exit 3), the box into a Krylov stall."""
+
+from __future__ import annotations
+
+from pathlib import Path
+
+import pytest
+
+from harness.cli import main
+from harness.contract import ExitCode
+from harness.errors import SceneError
+from harness.scene import load_scene
+
+ROOT = Path(__file__).parents[1]
+PAPER = ROOT / "cases" / "paper.toml"
+PAPER3D = ROOT / "cases" / "paper3d.toml"
+DATA = ROOT / "tests" / "data"
+
+FREE_ENDS = ['geometry.left="free"', 'geometry.right="free"']
+FREE_X_FACES = ['geometry.x0="free"', 'geometry.x1="free"']
+# A box held by rollers on its x and y faces, the foundation under z0, and rollers on z1:
+# no part where theta = 0 or phi = 0.
+ROLLER_BOX = ['geometry.x0="roller_x"', 'geometry.x1="roller_x"', 'geometry.y0="roller_y"', 'geometry.y1="roller_y"',
+              'geometry.z0="contact"', 'geometry.z1="roller_z"']
+
+REFUSED = {
+    "rectangle, both ends free, plain elasticity": (PAPER, [*FREE_ENDS, "scene.effects=[]"], "u is not fixed"),
+    "rectangle, both ends free, contact without friction": (PAPER, [*FREE_ENDS, 'scene.effects=["contact"]'],
+                                                           "u is not fixed"),
+    "rectangle, both ends free, Tresca friction with S = 0": (
+        PAPER, [*FREE_ENDS, 'scene.effects=["contact", "friction"]', "contact.S=0"], "u is not fixed"),
+    "rectangle, both ends free, Coulomb friction with mu = 0": (
+        PAPER, [*FREE_ENDS, 'scene.effects=["contact", "friction"]', 'contact.friction_law="coulomb"'],
+        "u is not fixed"),
+    "rectangle, rollers along y only": (PAPER, ['geometry.left="roller_y"', 'geometry.right="roller_y"',
+                                               "scene.effects=[]"], "u is not fixed"),
+    "rectangle, phi with no Dirichlet part and no conductance": (
+        PAPER, ['geometry.left="roller_x"', 'geometry.right="roller_x"',
+                'scene.effects=["piezoelectric", "contact", "friction"]'], "phi is defined only up to a constant"),
+    "rectangle, phi with k_e = 0": (PAPER, [*FREE_ENDS, "electric_contact.k_e=0"],
+                                    "phi is defined only up to a constant"),
+    "box, both x faces free, plain elasticity": (PAPER3D, [*FREE_X_FACES, "scene.effects=[]"], "u is not fixed"),
+    "box, rollers on x and y only": (DATA / "block3d.toml", ["scene.effects=[]"], "u is not fixed"),
+    "box, theta with no Dirichlet part and no conductance": (
+        PAPER3D, [*ROLLER_BOX, 'scene.effects=["thermal", "contact"]'], "theta is defined only up to a constant"),
+    "gmsh, tilted contact without friction": (DATA / "tilted_block.toml",
+                                               ['scene.effects=["piezoelectric", "thermal", "contact", '
+                                                '"electric_contact", "thermal_contact"]'], "u is not fixed"),
+    "gmsh, phi with k_e = 0": (DATA / "tilted_block.toml", ["electric_contact.k_e=0"],
+                               "phi is defined only up to a constant"),
+}
+
+HELD = {
+    "rectangle, both ends free, friction holds it": (PAPER, FREE_ENDS),
+    "rectangle, rollers along x and y": (PAPER, ['geometry.left="roller_x"', 'geometry.right="roller_y"',
+                                                 "scene.effects=[]"]),
+    "box, rollers on x and y, the foundation's normal along z": (DATA / "block3d.toml", []),
+    "box, theta fixed by the thermal contact": (
+        PAPER3D, [*ROLLER_BOX, 'scene.effects=["thermal", "contact", "thermal_contact"]']),
+    "gmsh, a free block on the foundation with friction": (DATA / "tilted_block.toml", []),
+}
+
+
+@pytest.mark.parametrize("name", list(REFUSED))
+def test_a_scene_that_cannot_fix_a_field_is_refused_naming_it(name):
+    case, overrides, words = REFUSED[name]
+    with pytest.raises(SceneError, match=words) as info:
+        load_scene(case, overrides)
+    assert str(info.value).startswith(f"{case}: geometry: ") and "\n" not in str(info.value)
+
+
+@pytest.mark.parametrize("name", list(HELD))
+def test_a_scene_whose_data_fix_every_field_loads(name):
+    case, overrides = HELD[name]
+    load_scene(case, overrides)
+
+
+@pytest.mark.parametrize("case, overrides", [(PAPER, [*FREE_ENDS, "scene.effects=[]"]),
+                                             (PAPER3D, [*FREE_X_FACES, "scene.effects=[]"])])
+def test_the_refusal_is_exit_2_with_one_line_before_anything_runs(tmp_path, capsys, case, overrides):
+    sets = [word for item in overrides for word in ("--set", item)]
+    code = main(["solve", str(case), "--n", "2", "--results", str(tmp_path / "results"), *sets])
+    err = capsys.readouterr().err.strip().splitlines()
+    assert code == ExitCode.INPUT == 2
+    assert len(err) == 1 and err[0].startswith("error:") and "u is not fixed" in err[0], err
+    assert not (tmp_path / "results").exists()
