@@ -230,6 +230,7 @@ def test_make_crosscheck_leaves_out_the_scenes_with_a_floating_electrode():
     from pathlib import Path
 
     root = Path(__file__).parents[1]
-    listed = subprocess.run(["make", "-n", "crosscheck"], cwd=root, capture_output=True, text=True, check=True,
-                            timeout=60).stdout.splitlines()[-1]
+    # --no-print-directory: under `make test` this make is nested and would end with "Leaving directory"
+    listed = subprocess.run(["make", "--no-print-directory", "-n", "crosscheck"], cwd=root, capture_output=True,
+                            text=True, check=True, timeout=60).stdout.splitlines()[-1]
     assert "cases/disc_pad.toml" in listed and "cases/force_sensor.toml" not in listed
