@@ -20,7 +20,7 @@ from harness.contract import ExitCode, contract_path
 from harness.errors import SceneError
 from harness.fields import read_state
 from harness.layout import Layout
-from harness.peer import material_values
+from harness.materials import values as material_values
 from harness.poling import parse_poling
 from physics_runs import CASES, DATA
 
