@@ -274,6 +274,9 @@ SCHEMA: dict[str, dict[str, Key]] = {
     "study": {
         "levels": Key(list, check=positive_ints),
         "slope_band": Key(list, check=increasing_pair),
+        # An adaptive study's band (python -m harness adapt): each field's slope of its error
+        # estimate against N^(-1/d), 1 being optimal; [] judges nothing.
+        "adaptive_band": Key(list, [], check=lambda v: None if v == [] else increasing_pair(v)),
     },
 }
 

@@ -162,3 +162,17 @@ def test_the_3d_loop_keeps_the_optimal_rate_on_a_smooth_manufactured_solution(tm
         assert rates["adaptive"][field] >= 0.3, rates
         effectivity = table[f"eta_{field}"] / table[f"err_{field}"]
         assert 0.85 <= effectivity.min() and effectivity.max() <= 1.15, (field, effectivity.tolist())  # 0.93-1.03
+
+
+def test_an_adaptive_slope_outside_the_cases_band_is_a_failed_verdict(capsys, tmp_path):
+    """[study] adaptive_band judges each field's slope of its estimate against N^(-1/d): a
+    band the paper's estimate cannot reach (its slopes are 0.9-1.1) ends in exit 1, the
+    report written first."""
+    results = tmp_path / "results"
+    code = main(["adapt", str(PAPER), "--steps", "8", "--set", "study.levels=[2, 4, 8]",
+                 "--set", "study.adaptive_band=[1.5, 2.0]", "--results", str(results)])
+    err = capsys.readouterr().err.strip().splitlines()
+    assert code == 1
+    assert err[-1].startswith("error: ") and "adaptive slope" in err[-1] and "[1.5, 2.0]" in err[-1], err[-1]
+    summary = json.loads((results / "adapt" / "paper" / "summary.json").read_text())
+    assert summary["adaptive_band"] == [1.5, 2.0] and set(summary["slope_of_estimate"]) == {"u", "phi", "theta"}

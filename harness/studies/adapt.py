@@ -127,6 +127,10 @@ def run(args: argparse.Namespace) -> int:
                              "uniform": {f: rate_in_dofs(flat["dofs"], flat[f"err_{f}"], scene.dimension) for f in fields}},
             "effectivity_last": {f: table[f"eta_{f}"].iloc[-1] / table[f"err_{f}"].iloc[-1] for f in fields},
         }
+        band = list(scene.sections.study.adaptive_band)
+        summary["adaptive_band"] = band
+        summary["slope_of_estimate"] = {f: scene.dimension * v for f, v in summary["rate_in_dofs"]["adaptive_estimate"].items()}
+        judged["summary"] = summary
         write_json(summary, out / "summary.json")
         plot_adapt(table, flat, fields, summary, out / "adapt.png")
         plot_mesh(adaptation.steps[-1].mesh, out / "mesh.png", scene.name)
@@ -137,7 +141,20 @@ def run(args: argparse.Namespace) -> int:
             rates["optimal"], *(", ".join(f"{f} {v:.2f}" for f, v in rates[k].items())
                                 for k in ("adaptive", "adaptive_estimate", "uniform"))))
 
-    run_pipeline(plan, runs, report)
+    def verdict(result: tuple[Adaptation, dict]) -> str | None:
+        """The case's [study] adaptive_band, on each field's slope of its estimate against
+        N^(-1/d) over the later half of the steps (1 optimal): the estimate needs no
+        reference, whose own error would bias the measured errors' slopes upward."""
+        summary = judged.get("summary") or {}
+        band = summary.get("adaptive_band") or []
+        if not band:
+            return None
+        outside = [f"{f} {v:.3f}" for f, v in summary["slope_of_estimate"].items() if not band[0] <= v <= band[1]]
+        return (f"{scene.name}: adaptive slope against N^(-1/{scene.dimension}) outside the band "
+                f"[{band[0]}, {band[1]}]: " + ", ".join(outside)) if outside else None
+
+    judged: dict = {}
+    run_pipeline(plan, runs, report, verdict)
     return 0
 
 
