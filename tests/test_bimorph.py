@@ -25,6 +25,7 @@ the tip rises kappa La (La/2 + c).
 from __future__ import annotations
 
 import json
+import tomllib
 from dataclasses import dataclass
 from pathlib import Path
 
@@ -148,5 +149,6 @@ def test_the_tip_presses_on_the_stop_with_coulomb_friction(tmp_path):
     # The bending stiffness at a fixed drive (D follows the bending): 1 / curvature per moment.
     stiffness = 1 / abs(laminate_curvature(Bender(volts=0.0), moment=1.0))
     free_length = b.active + b.pad     # from the clamp's margin to the tip
-    blocked = 3 * stiffness / free_length**3 * (free - 50e-6)
+    gap = tomllib.loads((CASES / "bimorph.toml").read_text())["contact"]["gap"]
+    blocked = 3 * stiffness / free_length**3 * (free - gap)
     assert 0.75 * blocked < forces[2] < blocked, (forces[2], blocked)
