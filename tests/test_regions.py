@@ -193,6 +193,25 @@ def test_two_layers_poled_oppositely_strain_oppositely(tmp_path, n):
     assert np.abs(u[:, 0]).max() <= 1e-10 * np.abs(exact).max()
 
 
+def test_two_layers_of_real_size_are_bonded_not_held_at_their_interface(tmp_path):
+    """The same known answer drawn in millimetres (tests/data/bilayer_mm.geo), whose cells are
+    below gmshload's area threshold: freefem/dimension.idp's own reader reads every level.
+    FreeFEM's readmesh makes the edges between two cell labels boundary edges, labelled with
+    their vertices' label 1 (the clamped role's), which held the interface at u = 0, phi = 0."""
+    n = 4
+    run = solve(DATA / "opposed.toml", n, tmp_path, 'geometry.file="bilayer_mm.geo"')
+    u, phi = read_state(tmp_path / "opposed" / f"n{n}" / "state.txt")[:2]
+    y = grid(run.fields.points[:, 1] * 1e3, n) * 1e-3
+    V, t1, thickness = 100.0, 0.5e-3, 1e-3
+    strain = -E33 * V / (thickness * C33["PZT-5H"])
+    exact = np.where(y <= t1, strain * y, strain * t1 - strain * (y - t1))
+    u = u.reshape(-1, 2)
+    # P1-exact fields, as at unit size (measured below 1e-12 of the largest value).
+    assert phi == pytest.approx(V * y / thickness, abs=1e-10 * V)
+    assert u[:, 1] == pytest.approx(exact, abs=1e-10 * np.abs(exact).max())
+    assert np.abs(u[:, 0]).max() <= 1e-10 * np.abs(exact).max()
+
+
 def test_every_region_poled_the_other_way_is_the_body_poled_the_other_way(tmp_path):
     """Both layers poled -y through their own entries, against one material poled -y."""
     regions = 'scene.materials={lower = {material = "PZT-5H", poling_axis = "-y"}, upper = {material = "PZT-5H", poling_axis = "-y"}}'
