@@ -31,7 +31,7 @@ STUDIES: dict[str, str] = {
     "stress": "the stress suite: every case of cases/hard/, classified, with physical checks",
     "branches": "the solution branches of the paper's scene from four starts",
     "verify": "true errors against exact (manufactured) solutions, and the Grid Convergence Index",
-    "adapt": "adaptive refinement from the error estimate (2D): error against unknowns, beside uniform",
+    "adapt": "adaptive refinement from the error estimate (2D and 3D): error against unknowns, beside uniform",
     "cost": "what accuracy costs: the cost-accuracy frontier of a scene",
     "bench": "repeated timings (finest level, sweep, whole process), medians and spread",
     "solvers": "the solver table: every linear solver on the same levels, medians",
