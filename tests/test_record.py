@@ -12,9 +12,10 @@ from harness.layout import REPO
 from harness.record import CHECK_KEYS, HARNESS_KEYS, KEYS, RunRecord
 
 FREEFEM = REPO / "freefem"
-# A top-level key: `jsonField(f, "name", ...)` or a line `f << "  \"name\": ...` (two spaces);
-# a check: `f << "    \"name\": ...` (four spaces, inside "checks").
-TOP = re.compile(r'jsonField\(f, "(\w+)",|f << "  \\"(\w+)\\":')
+# A top-level key: `jsonField(f, "name", ...)`, `perFieldJson(f, "name", ...)` (json.idp) or a
+# line `f << "  \"name\": ...` (two spaces); a check: `f << "    \"name\": ...` (four
+# spaces, inside "checks").
+TOP = re.compile(r'(?:jsonField|perFieldJson)\(f, "(\w+)",|f << "  \\"(\w+)\\":')
 CHECK = re.compile(r'f << "    \\"(\w+)\\":')
 RANGE = re.compile(r'jsonField\(f, "(min|max)_" \+ name')
 
