@@ -184,24 +184,16 @@ def test_a_driven_layer_poled_the_other_way_moves_the_other_way(tmp_path):
     assert phi2 == pytest.approx(phi, abs=1e-12 * np.abs(phi).max())
 
 
-SQUARE = """
+# The turned scenes below: one scene and its loads, on a square (2D) or a cube (3D).
+SCENE = """
 [scene]
 name = "{name}"
 material = "PZT-5H"
 effects = ["piezoelectric", "thermal", "pyroelectric"]
 initial_guess = "zero"
 poling_axis = "{poling}"
-
-[geometry]
-kind = "rectangle"
-width = 1.0
-height = 1.0
-bottom = [[0.0, 1.0, "{bottom}"]]
-top = [[0.0, 1.0, "{top}"]]
-left = "{left}"
-right = "{right}"
-diagonals = "SW-NE"
-
+"""
+LOADS = """
 [loads]
 electrode_potential = 100.0
 heat_source = 1e4
@@ -214,15 +206,18 @@ rtol = 1e-9
 levels = [2, 4]
 slope_band = [0.5, 1.5]
 """
-
-BOX = """
-[scene]
-name = "{name}"
-material = "PZT-5H"
-effects = ["piezoelectric", "thermal", "pyroelectric"]
-initial_guess = "zero"
-poling_axis = "{poling}"
-
+SQUARE = SCENE + """
+[geometry]
+kind = "rectangle"
+width = 1.0
+height = 1.0
+bottom = [[0.0, 1.0, "{bottom}"]]
+top = [[0.0, 1.0, "{top}"]]
+left = "{left}"
+right = "{right}"
+diagonals = "SW-NE"
+""" + LOADS
+BOX = SCENE + """
 [geometry]
 kind = "box"
 lx = 1.0
@@ -234,19 +229,7 @@ y0 = "{y0}"
 y1 = "{y1}"
 z0 = "{z0}"
 z1 = "{z1}"
-
-[loads]
-electrode_potential = 100.0
-heat_source = 1e4
-
-[newton]
-max_iterations = 40
-rtol = 1e-9
-
-[study]
-levels = [2, 4]
-slope_band = [0.5, 1.5]
-"""
+""" + LOADS
 
 
 def nodes(points: np.ndarray, n: int) -> list[tuple[int, ...]]:
