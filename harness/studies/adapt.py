@@ -100,11 +100,12 @@ def run(args: argparse.Namespace) -> int:
                          "newton_iterations": r.newton_iterations, "wall_s": r.wall_s, "peak_mib": r.peak_rss_mb,
                          **step.quality})
         table = pd.DataFrame(rows)
+        coarser = {n: run for n, run in sorted(uniform.items()) if run.record.dofs < adaptation.reference.record.dofs}
         flat = pd.DataFrame([{"n": n, "dofs": run.record.dofs,
-                              **{f"err_{f}": errors(run)[f] for f in fields},
+                              **{f"err_{f}": v for f, v in errors(run).items()},
                               "newton_iterations": run.record.newton_iterations, "wall_s": run.record.wall_s,
                               "peak_mib": run.record.peak_rss_mb}
-                             for n, run in sorted(uniform.items()) if run.record.dofs < adaptation.reference.record.dofs])
+                             for n, run in coarser.items()])
         write_csv(table, out / "adapt.csv", PRECISE_CSV_FORMAT)
         write_csv(flat, out / "uniform.csv", PRECISE_CSV_FORMAT)
         # The rate of the error over the later half of the steps that are at least 16 times
