@@ -90,7 +90,7 @@ paper-figures: $(STAMP) freefem getfem
 $(VENV_STAMP): pyproject.toml
 	bash scripts/make-venv.sh $(PYTHON) $(VENV)
 
-$(STAMP): $(VENV_STAMP) $(wildcard harness/*.py harness/studies/*.py)
+$(STAMP): $(VENV_STAMP) $(wildcard harness/*.py harness/*/*.py)
 	$(PY) -m compileall -q harness
 	touch $@
 

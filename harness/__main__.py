@@ -10,7 +10,7 @@ if __name__ == "__main__":
 
 import gc  # noqa: E402
 
-from harness.signals import install  # noqa: E402
+from harness.core.signals import install  # noqa: E402
 
 install()
 try:

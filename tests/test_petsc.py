@@ -11,17 +11,17 @@ from pathlib import Path
 import numpy as np
 import pytest
 
-from harness import petsc_plugin
+from harness.run import petsc_plugin
 from harness.cli import main
-from harness.contract import ExitCode
-from harness.errors import EnvironmentFault, SceneError
-from harness.faults import exit_code
-from harness.fields import read_state
-from harness.layout import Layout
-from harness.mesh import build_mesh, coarser_levels
-from harness.run import run_level
-from harness.scene import load_scene
-from harness.unknowns import Unknowns
+from harness.core.contract import ExitCode
+from harness.core.errors import EnvironmentFault, SceneError
+from harness.core.faults import exit_code
+from harness.measure.fields import read_state
+from harness.core.layout import Layout
+from harness.mesh.mesh import build_mesh, coarser_levels
+from harness.run.run import run_level
+from harness.scene.scene import load_scene
+from harness.scene.unknowns import Unknowns
 
 CASES = Path(__file__).parents[1] / "cases"
 # Every scene's effect set (the 2D scenes) and both 3D scenes, at a coarse level.
