@@ -1,3 +1,5 @@
+"""`python -m harness`: the signal handlers first, before the heavy imports, then the command line."""
+
 import signal
 import sys
 

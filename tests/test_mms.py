@@ -18,7 +18,8 @@ from harness.core import freefem
 from harness.core.errors import SceneError
 from harness.measure.fields import read_fields
 from harness.core.layout import REPO, Layout
-from harness.scene.mms import MACROS, X, Y, derive, fe_errors, macros, material_constants, numeric, parse_exact
+from harness.measure.norms import fe_errors
+from harness.scene.mms import MACROS, X, Y, derive, macros, material_constants, numeric, parse_exact
 from harness.measure.norm_table import MMS_NORMS
 from harness.scene.scene import load_scene
 from harness.run.script import main_script

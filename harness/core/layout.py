@@ -8,6 +8,11 @@ from pathlib import Path
 REPO = Path(__file__).resolve().parents[2]
 
 
+
+def is_material_path(material: str) -> bool:
+    """`scene.material` names a file (it has a folder or the .idp suffix), not a library name."""
+    return "/" in material or material.endswith(".idp")
+
 def results_root() -> Path:
     """`./results` under the working directory: a study writes where its user stands, not
     into the checkout the harness was installed from (the Makefile runs from the checkout's
@@ -39,9 +44,7 @@ class Layout:
 
     def material_file(self, material: str) -> Path:
         """A library name's file in freefem/materials/, or the path a scene gave."""
-        from harness.scene.materials import file_of
-
-        return file_of(material, self.material_library())
+        return Path(material) if is_material_path(material) else self.material_library() / f"{material}.idp"
 
     def material_reduction_file(self) -> Path:
         """Derives the plane-strain constants the scheme uses from a material's 3D set."""

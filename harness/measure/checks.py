@@ -1,4 +1,4 @@
-"""The physical checks of a converged run (issue 4): every quantity is FreeFEM's
+"""The physical checks of a converged run: every quantity is FreeFEM's
 (freefem/checks.idp, written to run.json); this module only compares them with their
 tolerances, each relative to a named scale, and says why each tolerance is what it is."""
 

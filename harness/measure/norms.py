@@ -11,7 +11,7 @@ from __future__ import annotations
 
 import itertools
 import math
-from typing import Callable, Sequence
+from typing import TYPE_CHECKING, Callable, Mapping, Sequence
 
 import numpy as np
 from matplotlib.tri import Triangulation
@@ -20,6 +20,9 @@ from harness.core.errors import FieldsError, MeshError
 from harness.mesh.box_mesh import grid_index, kuhn_weights
 from harness.measure.fields import Fields
 from harness.measure.norm_table import MMS_NORMS, measure_of
+
+if TYPE_CHECKING:
+    import sympy
 
 
 def kuhn_located(coarse: Fields, at: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
@@ -243,3 +246,21 @@ def error_norms(coarse: Fields, fine: Fields, names: list[str]) -> dict[str, flo
             fine.points, fine.triangles, fine.field(name) - transfer(coarse, name, fine.points, weights))))
         for name in names
     }
+
+
+def fe_errors(points: np.ndarray, triangles: np.ndarray, values: Mapping[str, np.ndarray],
+              exact: Mapping[str, "sympy.Expr"]) -> dict[str, dict[str, float]]:
+    """Absolute L2 error and full-gradient H1-seminorm error of P1 nodal fields against a
+    manufactured solution's exact ones (exact_errors): an independent check of what FreeFEM
+    reports. `values` maps "u" to (N, 2) and "phi"/"theta" to (N,); `exact` holds u1, u2,
+    phi, theta."""
+    import sympy  # only the manufactured cases pay for sympy's import
+
+    from harness.scene.mms import X, Y, numeric
+
+    out = {}
+    for field, nodal in values.items():
+        keys = ["u1", "u2"] if nodal.ndim == 2 else [field]
+        f = [numeric({"v": exact[k], "dx": sympy.diff(exact[k], X), "dy": sympy.diff(exact[k], Y)}) for k in keys]
+        out[field] = exact_errors(points, triangles, nodal, [(g["v"], g["dx"], g["dy"]) for g in f])
+    return out

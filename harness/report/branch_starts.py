@@ -1,4 +1,4 @@
-"""The solution branches of a scene, the paper's by default (issue 4), the library of `make branches`
+"""The solution branches of a scene, the paper's by default, the library of `make branches`
 (harness/studies/branches.py): each start a convergence study, its finest level's
 quantities, slopes and physical checks in one row, and which starts reached the same
 solution."""

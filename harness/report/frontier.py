@@ -1,4 +1,4 @@
-"""What accuracy costs (issue 5), the library of `make cost` (harness/studies/cost.py): every
+"""What accuracy costs, the library of `make cost` (harness/studies/cost.py): every
 discretisation's chain measured against one reference, the fitted laws E ~ C h^p, T ~ D h^-q,
 M ~ G h^-r (harness/measure/rates.py's PowerLaw), the frontier (to reach E <= tau: h, seconds, MB),
 and the files written (tables, Markdown, plots from harness/report/plot.py)."""

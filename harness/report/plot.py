@@ -5,7 +5,7 @@ and the cost study's errors against cost, time split and scaling."""
 from __future__ import annotations
 
 from pathlib import Path
-from typing import TYPE_CHECKING
+from typing import Any, Mapping, Protocol
 
 import numpy as np
 import pandas as pd
@@ -16,8 +16,15 @@ from harness.measure.norm_table import FIELD_NAMES, TOTAL, error_column, error_l
 from harness.measure.rates import scaling_exponents
 from harness.study.study import Study
 
-if TYPE_CHECKING:
-    from harness.report.frontier import CostStudy
+
+
+class CostTables(Protocol):
+    """What the cost plots read of a cost study (harness/report/frontier.py's CostStudy)."""
+    scene: str
+    reference: tuple[str, int]
+    table: pd.DataFrame
+    scaling: pd.DataFrame
+    fits: Mapping[str, Any]
 
 
 def plot_convergence(study: Study, target: Path) -> None:
@@ -74,7 +81,7 @@ def plot_mms(errors: pd.DataFrame, rates: pd.DataFrame, target: Path) -> None:
     fig.savefig(target, format="png", dpi=120)
 
 
-def plot_errors(study: CostStudy, x: str, xlabel: str, target: Path) -> None:
+def plot_errors(study: CostTables, x: str, xlabel: str, target: Path) -> None:
     fig = Figure(figsize=(10, 7.5))
     axes = fig.subplots(2, 2).ravel()
     table = study.table[~study.table["discretisation"].str.contains("reference")]
@@ -122,7 +129,7 @@ def split_columns(table: pd.DataFrame) -> pd.DataFrame:
     return t
 
 
-def plot_time_split(study: CostStudy, target: Path) -> None:
+def plot_time_split(study: CostTables, target: Path) -> None:
     """Per level, each part's share of the level's wall time (mesh included), the total on top."""
     table = split_columns(finished(study.table[~study.table["discretisation"].str.contains("reference")]))
     groups = list(table.groupby("discretisation", sort=False))
@@ -148,7 +155,7 @@ def plot_time_split(study: CostStudy, target: Path) -> None:
     fig.savefig(target, format="png", dpi=110)
 
 
-def plot_scaling(study: CostStudy, target: Path) -> None:
+def plot_scaling(study: CostTables, target: Path) -> None:
     s = finished(study.scaling)
     if s.empty:
         return

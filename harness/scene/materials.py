@@ -25,7 +25,6 @@ import numpy as np
 from harness.core.errors import SceneError
 from harness.core.layout import Layout
 from harness.scene.material_constants import material_constants
-from harness.scene.schema import is_material_path
 
 # The material tensors: macro name -> key of the peer's input and symbol of an entry
 # (docs/model.md section 8).
@@ -37,10 +36,6 @@ NAME = re.compile(r'^\s*string\s+materialName\s*=\s*"([^"]*)"', re.MULTILINE)
 ROW = re.compile(r"\[([^\[\]]*)\]")
 NUMBER_IN = re.compile(r"(?:\d+\.?\d*|\.\d+)(?:[eE][+-]?\d+)?")
 WORD = re.compile(r"[A-Za-z_]\w*")
-
-
-def file_of(material: str, library: Path) -> Path:
-    return Path(material) if is_material_path(material) else library / f"{material}.idp"
 
 
 def check(path: Path, layout: Layout) -> None:

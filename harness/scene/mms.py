@@ -230,19 +230,3 @@ def numeric(derived: Mapping[str, sympy.Expr]) -> dict[str, Callable[[np.ndarray
         f = sympy.lambdify((X, Y), expr, "numpy")
         out[key] = lambda x, y, f=f: np.broadcast_to(f(x, y), np.broadcast(x, y).shape).astype(float)
     return out
-
-
-def fe_errors(points: np.ndarray, triangles: np.ndarray, values: Mapping[str, np.ndarray],
-              exact: Mapping[str, sympy.Expr]) -> dict[str, dict[str, float]]:
-    """Absolute L2 error and full-gradient H1-seminorm error of P1 nodal fields against
-    exact ones (harness/measure/norms.py, exact_errors): an independent check of what FreeFEM
-    reports. `values` maps "u" to (N, 2) and "phi"/"theta" to (N,); `exact` holds u1, u2,
-    phi, theta."""
-    from harness.measure.norms import exact_errors
-
-    out = {}
-    for field, nodal in values.items():
-        keys = ["u1", "u2"] if nodal.ndim == 2 else [field]
-        f = [numeric({"v": exact[k], "dx": sympy.diff(exact[k], X), "dy": sympy.diff(exact[k], Y)}) for k in keys]
-        out[field] = exact_errors(points, triangles, nodal, [(g["v"], g["dx"], g["dy"]) for g in f])
-    return out

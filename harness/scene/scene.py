@@ -14,7 +14,7 @@ from typing import Any, Iterable
 from harness.scene.electrodes import check_electrodes
 from harness.core.errors import SceneError
 from harness.scene.floating import check_floating
-from harness.run.petsc_plugin import default_options, factorising, multigrid
+from harness.scene.petsc_options import default_options, factorising, multigrid
 from harness.scene.box import Box, parse_box
 from harness.scene.gmsh_geometry import GmshGeometry, parse_gmsh
 from harness.scene.poling import Poling, default_axis, parse_poling

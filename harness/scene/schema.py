@@ -11,6 +11,7 @@ from dataclasses import dataclass
 from typing import Any, Callable
 
 from harness.core.contract import FLOATING_CHARGES, ROLE_LABELS  # noqa: F401  (ROLE_LABELS re-exported: the roles a scene may name)
+from harness.core.layout import is_material_path
 
 # Sections passed verbatim to FreeFEM as `-<section>.<key> <value>`.
 SOLVER_SECTIONS = ("loads", "contact", "electric_contact", "thermal_contact", "newton")
@@ -83,11 +84,6 @@ def increasing_pair(v: list) -> str | None:
 def safe_name(v: str) -> str | None:
     ok = v and v not in (".", "..") and all(c.isalnum() or c in "-_." for c in v)
     return None if ok else "must be a plain file name (letters, digits, - _ .)"
-
-
-def is_material_path(material: str) -> bool:
-    """`scene.material` names a file (it has a folder or the .idp suffix), not a library name."""
-    return "/" in material or material.endswith(".idp")
 
 
 def material_reference(v: str) -> str | None:

@@ -35,7 +35,7 @@ from harness.arguments import add_memory_override, add_results, name_list, posit
 from harness.study.engine import quiet, run_levels, runs_of, timed_meshes
 from harness.core.errors import RunError
 from harness.core.layout import REPO, Layout
-from harness.run.petsc_plugin import MULTIGRID, MUMPS_LU, field_split_options
+from harness.scene.petsc_options import MULTIGRID, MUMPS_LU, field_split_options
 from harness.report.plot import plot_rank_iterations
 from harness.study.pipeline import Guarded, Plan, run_pipeline
 from harness.run.run import run_level

@@ -1,4 +1,4 @@
-"""Verification beyond self-convergence (issue 6), the library of `make verify`
+"""Verification beyond self-convergence, the library of `make verify`
 (harness/studies/verify.py): the manufactured cases' true errors per level, field and norm
 (cases/mms/*.toml, harness/scene/mms.py) and their fitted slopes against the accepted bands."""
 
