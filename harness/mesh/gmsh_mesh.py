@@ -277,6 +277,21 @@ def write_msh(mesh: SimplexMesh, path: Path) -> None:
     meshio.write(path, meshio.Mesh(points, cells, cell_data=data), file_format="gmsh22", binary=False)
 
 
+def small_cells_marker(path: Path) -> Path:
+    """The file beside a mesh that says it holds triangles too small for FreeFEM's gmshload
+    (freefem/dimension.idp), for meshes no level rule describes: the adaptive loop's
+    (harness/study/adapt.py). Its presence is the whole message."""
+    return path.with_name(path.name + ".small_cells")
+
+
+def mark_small_cells(path: Path, small: bool) -> None:
+    marker = small_cells_marker(path)
+    if small:
+        marker.touch()
+    else:
+        marker.unlink(missing_ok=True)
+
+
 def role_measures(mesh: SimplexMesh) -> dict[str, float]:
     """Length (2D) or area (3D) of each role's facets."""
     measures = label_measures(mesh.points, mesh.facets, mesh.labels)

@@ -25,6 +25,7 @@ from harness.core.faults import disk_full, space_for
 from harness.scene.floating import floating_macros
 from harness.core.signals import CHILDREN, Interrupted
 from harness.core.layout import Layout
+from harness.mesh.gmsh_mesh import small_cells_marker
 from harness.mesh.mesh import coarser_meshes, family_levels
 from harness.run.record import RunRecord, read_run_json, write_run_json
 from harness.run.tresca import grip_warning
@@ -280,7 +281,7 @@ def solver_inputs(
         for coarse in coarser_meshes(scene.geometry, n, scene.multigrid_levels, scene.sections.run.multigrid_coarsest,
                                      mesh.resolve().parent, make_meshes):
             options += ["-mg.mesh", str(coarse)]
-    if isinstance(scene.geometry, GmshGeometry) and scene.geometry.small_cells(n):
+    if (isinstance(scene.geometry, GmshGeometry) and scene.geometry.small_cells(n)) or small_cells_marker(mesh).exists():
         options += ["-mesh.small_cells", "1"]
     if parallel:
         options += ["-parallel.krylov_rtol", repr(scene.sections.run.krylov_rtol)]

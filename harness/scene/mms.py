@@ -192,6 +192,8 @@ def freefem_expr(expr: sympy.Expr) -> str:
     name = type(expr).__name__
     if name in FUNCTIONS:
         return f"{name}({freefem_expr(expr.args[0])})"
+    if name == "atan2":  # FreeFEM's atan2(y, x), the angle of a singular solution (cases/mms/lshape.toml)
+        return f"atan2({freefem_expr(expr.args[0])}, {freefem_expr(expr.args[1])})"
     if name == "Abs":
         return f"abs({freefem_expr(expr.args[0])})"
     raise ValueError(f"no FreeFEM spelling for {name} in {expr}")
