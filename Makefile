@@ -136,8 +136,9 @@ branches: $(STAMP) freefem
 	$(PY) -m harness branches $(CLUSTER_FLAGS)
 	$(PY) -m harness branches cases/paper_gmsh.toml $(CLUSTER_FLAGS)
 
-# What accuracy costs (issue 5): P1, P2, P1 with a loose Newton tolerance and P1 on a mesh
-# graded towards the ends of Gamma_3, against one P2 reference (h = 1/64); the P1 chain on
+# What accuracy costs (issue 5): P1, P2, P1 with a loose Newton tolerance, P1 on a mesh
+# graded towards the ends of Gamma_3 and P1 on the adaptive loop's meshes (docs/adaptivity.md),
+# against one P2 reference (h = 1/64); the P1 chain on
 # to h = 1/256 for time and memory against dofs; into results/cost/ (cost.csv, fits.csv,
 # frontier.md/.csv, scaling.csv, PNGs; ~5 min).
 # Cached runs keep their old timings: COST_FLAGS=--force reruns every level.

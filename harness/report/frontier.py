@@ -16,6 +16,7 @@ import numpy as np
 import pandas as pd
 
 from harness.core import freefem
+from harness.core.errors import SceneError
 from harness.study.engine import InlineMeshes, Progress, freefem_startup_s, quiet, run_levels, runs_of, stderr_line, timed_meshes
 from harness.core.layout import Layout
 from harness.measure.norm_table import FIELD_NAMES, TOTAL, error_column, error_names
@@ -24,6 +25,7 @@ from harness.measure.rates import PowerLaw, power_fit, scaling_exponents
 from harness.run.record import RunRecord
 from harness.run.run import RunResult, check_solver_files
 from harness.scene.scene import Scene, load_scene
+from harness.study.adapt import DEFAULT_BULK, adapt
 from harness.core.writers import markdown_table, write_csv, write_json, write_text, write_with
 
 ERROR_NAMES = error_names()
@@ -39,6 +41,7 @@ class Discretisation:
     overrides: tuple[str, ...]
     description: str
     grading: float = 1.0  # > 1: the mesh graded towards the ends of Gamma_3 (graded_msh)
+    adaptive: bool = False  # the adaptive loop's steps (harness/study/adapt.py) in place of levels
 
 
 DISCRETISATIONS = {
@@ -54,7 +57,16 @@ DISCRETISATIONS = {
         "P1-graded", ("scene.element=P1", "reference.split=2"),
         "P1 on a mesh graded towards the ends of Gamma_3 (x -> 1, 3 and y -> 0, power 1.5)", grading=1.5,
     ),
+    # Bisected from the coarsest mesh where the estimate is large: not nested in the reference
+    # either (newest-vertex bisection cuts a square along both diagonals), hence the split.
+    "P1-adaptive": Discretisation(
+        "P1-adaptive", ("scene.element=P1", "reference.split=2"),
+        "P1 on meshes adapted by the error estimate (Dörfler 0.5, bisection from the coarsest level)", adaptive=True,
+    ),
 }
+# The adaptive loop of the cost study: steps enough to reach the budget (the unknowns of the P1
+# level n_ref/2, where the error fits end) from n = 2.
+ADAPT_STEPS = 60
 
 
 
@@ -199,7 +211,8 @@ def row_of(
 
 def add_chain_costs(table: pd.DataFrame) -> pd.DataFrame:
     """chain_s: mesh + run wall time summed over the chain up to each level."""
-    table = table.sort_values(["discretisation", "n"]).reset_index(drop=True)
+    # Stable: two adaptive steps may share their rounded n; they stay in step order.
+    table = table.sort_values(["discretisation", "n"], kind="stable").reset_index(drop=True)
     table["chain_s"] = (table["mesh_s"] + table["wall_s"]).groupby(table["discretisation"]).cumsum()
     return table
 
@@ -266,6 +279,10 @@ def run_cost(
         scene = load_scene(case, [*overrides, *disc.overrides, f"scene.name={base.name}-{name}", *ref_options])
         # A level of the reference's own element and mesh would measure the reference against itself.
         disc_levels = [n for n in levels if n <= ref_n and not (n == ref_n and scene.element == ref_element)]
+        if disc.adaptive:
+            progress(f"{name}: {disc.description}")
+            rows += adaptive_rows(base.name, scene, rows, ref_n, layout, force, startup, progress)
+            continue
         progress(f"{name}: {disc.description}, levels {disc_levels}")
         meshes, mesh_s = timed_meshes(scene, disc_levels, layout, disc.grading)
         runs = runs_of(run_levels(scene, meshes, layout, force=force, progress=progress, pipelined=False))
@@ -282,12 +299,41 @@ def run_cost(
     return study
 
 
+def adaptive_rows(
+    scene_name: str, scene: Scene, rows: list[dict[str, Any]], ref_n: int, layout: Layout, force: bool, startup: float,
+    progress: Progress,
+) -> list[dict[str, Any]]:
+    """The adaptive loop's steps, each measured against the study's reference like a level,
+    until a step has as many unknowns as the P1 level n_ref/2. A step has no h: its row gets
+    that of the uniform P1 level with as many unknowns (log-log interpolation between P1's
+    levels), so that the fits and the frontier put it on the same axis; `step` and `dofs` say
+    what it is. Its chain time is the loop's: every step's mesh and run up to it."""
+    p1 = pd.DataFrame([r for r in rows if r["discretisation"] == "P1" and math.isfinite(float(r.get("dofs") or math.nan))])
+    if p1.empty:
+        raise SceneError("discretisation 'P1-adaptive' is placed beside P1 (a step's h is that of the P1 level with "
+                         "as many unknowns): ask for P1 too")
+    p1 = p1.sort_values("dofs")
+    budget = p1.loc[p1["n"] == ref_n // 2, "dofs"]
+    adaptation = adapt(scene, None, layout, ADAPT_STEPS, DEFAULT_BULK, int(budget.iloc[0]) if len(budget) else None,
+                       force, progress, progress)
+    out = []
+    for step in adaptation.steps:
+        row = row_of(scene_name, "P1-adaptive", "P1", step.run, step.mesh_s, startup)
+        h = float(np.exp(np.interp(np.log(float(row["dofs"])), np.log(p1["dofs"].astype(float)),
+                                   np.log(p1["h"].astype(float)))))
+        row.update(n=round(1.0 / h), h=h, step=step.index)
+        out.append(row)
+    return out
+
+
 def scaling_rows(
     scene: Scene, levels: Sequence[int], runs: dict[int, RunResult], meshes: dict[int, Path], layout: Layout,
     force: bool, startup: float, progress: Progress,
 ) -> list[dict[str, Any]]:
     """The P1 chain continued to finer levels, for time and memory against dofs only. A
     level that fails (out of memory, say) ends the chain with a row saying why, not the study."""
+    if not levels:  # a study without scaling levels (or with all of them among its own)
+        return []
     rows = []
     below = max(runs)
     finer = InlineMeshes(scene, levels, layout)

@@ -21,7 +21,7 @@ from pathlib import Path
 
 import pandas as pd
 
-from harness.study.adapt import Adaptation, adapt, check_adaptable, errors_against, uniform_runs
+from harness.study.adapt import DEFAULT_BULK, Adaptation, adapt, check_adaptable, errors_against, uniform_runs
 from harness.arguments import add_case, add_common, positive_int
 from harness.study.engine import quiet
 from harness.measure.fields import read_fields
@@ -47,9 +47,9 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
     add_case(parser)
     parser.add_argument("--steps", type=positive_int, default=12,
                         help="solves at most, the first on the case's coarsest mesh (default 12)")
-    parser.add_argument("--bulk", type=bulk_fraction, default=0.5,
+    parser.add_argument("--bulk", type=bulk_fraction, default=DEFAULT_BULK,
                         help="Dörfler's fraction: refine the fewest cells that hold this share of the "
-                             "squared estimate (0 < bulk <= 1; 1 refines everything; default 0.5)")
+                             f"squared estimate (0 < bulk <= 1; 1 refines everything; default {DEFAULT_BULK})")
     parser.add_argument("--max-dofs", type=positive_int, default=None,
                         help="stop after the first step with at least this many unknowns")
     add_common(parser)

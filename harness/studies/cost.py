@@ -70,7 +70,9 @@ def run(args: argparse.Namespace) -> int:
     # (mesh.graded_msh); a box or a gmsh scene has no such lattice.
     rectangle = isinstance(base.geometry, Geometry)
     if args.discretisations is None:
-        args.discretisations = [d for d in DISCRETISATIONS if rectangle or DISCRETISATIONS[d].grading == 1.0]
+        # The adaptive loop warm-starts each step from the one before (harness/study/adapt.py).
+        args.discretisations = [d for d in DISCRETISATIONS if (rectangle or DISCRETISATIONS[d].grading == 1.0)
+                                and (base.initial_guess == "coarser" or not DISCRETISATIONS[d].adaptive)]
     unknown = [d for d in args.discretisations if d not in DISCRETISATIONS]
     if unknown:
         raise SceneError(f"unknown discretisation {unknown[0]!r} (have {', '.join(DISCRETISATIONS)})")

@@ -62,6 +62,9 @@ class Adaptation:
 # The refinement of each dimension: start, refine, uniform, oriented; and the uniform
 # bisection rounds that make the reference four (2D) or eight or more (3D) times finer.
 REFINERS = {2: bisection, 3: tet_bisection}
+# Dörfler's fraction unless a study says otherwise: half the squared estimate marked per step,
+# the value of Dörfler's own experiments (SIAM J. Numer. Anal. 33 (1996) 1106).
+DEFAULT_BULK = 0.5
 REFERENCE_ROUNDS = {2: 2, 3: 3}
 CELL_TYPES = {2: ("triangle", "line"), 3: ("tetra", "triangle")}
 
