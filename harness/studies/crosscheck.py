@@ -11,11 +11,13 @@ from __future__ import annotations
 import argparse
 from dataclasses import dataclass
 from pathlib import Path
+from typing import Mapping
 
 import pandas as pd
 
 from harness.arguments import add_common, name_list, positive_int, study_levels
 from harness.measure.crosscheck import TOLERANCE, differences, integral_differences
+from harness.study.adapt import DEFAULT_BULK, adapt
 from harness.study.engine import InlineMeshes, quiet, run_levels, runs_of
 from harness.core.errors import Disagreement, FieldsError, RunError, SceneError
 from harness.measure.fields import Fields, read_fields
@@ -43,6 +45,9 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
     parser.add_argument("--repeat", type=positive_int, default=1,
                         help="also time the finest level N more times per code, FreeFEM and GetFEM alternating, "
                         "medians into timing.csv and timing.md")
+    parser.add_argument("--adapted", type=positive_int, metavar="STEPS",
+                        help="also compare on the mesh of the adaptive loop's step STEPS (from the case's coarsest "
+                        "level, as `adapt` makes it): non-uniform and bisected, unlike the levels")
     parser.add_argument("--figures", type=Path, help="also draw the paper's figures from both codes at the "
                         "finest level into this folder (docs/crosscheck.md)")
     add_common(parser)
@@ -75,6 +80,8 @@ def run(args: argparse.Namespace) -> int:
         for scene, start, levels in plans:
             try:
                 done.rows.extend(compare(scene, start, levels, layout, args.force, args.figures))
+                if args.adapted:
+                    done.rows.extend(compare_adapted(scene, start, args.adapted, args.overrides, layout, args.force))
                 if args.repeat > 1:
                     done.timed.append(timing(scene, start, max(levels), layout, args.repeat))
             except (RunError, FieldsError) as exc:  # recorded; the other scenes still run
@@ -134,9 +141,23 @@ def plans_of(case: Path, overrides: list[str], branches: list[str] | None,
     return out
 
 
+def compare_adapted(scene: Scene, start: str, steps: int, overrides: list[str], layout: Layout,
+                    force: bool) -> list[dict]:
+    """Both codes on the mesh of the adaptive loop's step `steps` (harness/study/adapt.py: the
+    loop warm-starts, so it runs as a scene of its own), each from the branch's start. Its row
+    names the mesh; its n is the step."""
+    looping = load_scene(scene.source, [*overrides, f"scene.name={scene.name}_adapting", "scene.initial_guess=coarser"])
+    adaptation = adapt(looping, None, layout, steps, DEFAULT_BULK, None, force, quiet, lambda line: None)
+    last = adaptation.steps[-1]
+    compared = load_scene(scene.source, [*overrides, f"scene.name={scene.name}_adapted", f"scene.initial_guess={start}"])
+    rows = compare(compared, start, (last.index,), layout, force, meshes={last.index: last.mesh})
+    return [dict(row, mesh=f"adaptive step {last.index}, {last.cells} cells") for row in rows]
+
+
 def compare(scene: Scene, start: str, levels: tuple[int, ...], layout: Layout, force: bool,
-            figures: Path | None = None) -> list[dict]:
-    meshes = InlineMeshes(scene, list(levels), layout)
+            figures: Path | None = None, meshes: Mapping[int, Path] | None = None) -> list[dict]:
+    """Both codes on each level, or on the given meshes (one per label in `levels`)."""
+    meshes = meshes or InlineMeshes(scene, list(levels), layout)
     runs = runs_of(run_levels(scene, meshes, layout, force=force, progress=quiet))
     material = material_values(layout.material_file(scene.material))
     rows = []
@@ -309,6 +330,8 @@ def write(table: pd.DataFrame, out: Path) -> None:
                                        + "\n\n## Per level\n\n" + table_markdown(table) + "\n")
     fig, ax = plt.subplots(figsize=(7, 4.5))
     done = table.dropna(subset=["n"]) if "n" in table else table.iloc[0:0]
+    if "mesh" in done:  # an adapted mesh has no h
+        done = done[done["mesh"].isna()]
     for (scene, branch), group in done.groupby(["scene", "branch"]):
         for col in field_columns(group):
             if group[col].notna().any() and "nodal" not in col:
