@@ -9,10 +9,10 @@ import numpy as np
 import pytest
 
 from harness.mesh import tet_bisection as tb
-from harness.mesh.simplex import boundary_facets, quality, signed_measures
+from harness.mesh.simplex import SimplexMesh, boundary_facets, quality, signed_measures
 
 
-def cube(n: int = 2) -> tb.TetMesh:
+def cube(n: int = 2) -> SimplexMesh:
     """The unit cube in n^3 Kuhn cubes of six tetrahedra; the face z = 0 labelled 3, the rest 1."""
     xs = np.linspace(0.0, 1.0, n + 1)
     points = np.array([(x, y, z) for z in xs for y in xs for x in xs])

@@ -10,7 +10,7 @@ import math
 from dataclasses import dataclass
 from typing import Any, Callable
 
-from harness.core.contract import FLOATING_CHARGES, ROLE_LABELS  # noqa: F401  (ROLE_LABELS re-exported: the roles a scene may name)
+from harness.core.contract import FLOATING_CHARGES, ROLE_LABELS
 from harness.core.layout import is_material_path
 
 # Sections passed verbatim to FreeFEM as `-<section>.<key> <value>`.
@@ -187,7 +187,7 @@ SCHEMA: dict[str, dict[str, Key]] = {
         "left": Key(str, check=_ROLE),
         "right": Key(str, check=_ROLE),
         # "unstructured": gmsh's Frontal-Delaunay triangles of size h with the interior
-        # nodes shifted at random by up to 0.3 h (a distorted, non-nested mesh; harness/mesh/mesh.py).
+        # nodes shifted at random by up to 0.3 h (a distorted, non-nested mesh; harness/mesh/rectangle_mesh.py).
         "diagonals": Key(str, "SW-NE", one_of("SW-NE", "NW-SE", "unstructured")),
     },
     "loads": {
