@@ -38,9 +38,10 @@ def longest_edge_first(points: np.ndarray, cells: np.ndarray) -> np.ndarray:
     return np.column_stack([cells[rows, (newest + 1) % 3], cells[rows, (newest + 2) % 3], cells[rows, newest]])
 
 
-def start(points: np.ndarray, cells: np.ndarray, facets: np.ndarray, labels: np.ndarray) -> SimplexMesh:
+def start(points: np.ndarray, cells: np.ndarray, facets: np.ndarray, labels: np.ndarray,
+          regions: np.ndarray | None = None) -> SimplexMesh:
     return SimplexMesh(points[:, :2].astype(float), longest_edge_first(points[:, :2], cells),
-                         facets.astype(np.int64), labels.astype(np.int64))
+                       facets.astype(np.int64), labels.astype(np.int64), regions)
 
 
 def closure(mesh: SimplexMesh, marked: np.ndarray) -> np.ndarray:
@@ -61,7 +62,8 @@ def closure(mesh: SimplexMesh, marked: np.ndarray) -> np.ndarray:
 
 def refine(mesh: SimplexMesh, marked: np.ndarray) -> SimplexMesh:
     """`mesh` with the marked cells (a boolean mask) bisected, and as many others as
-    conformity needs; every cut edge is cut once, at its midpoint."""
+    conformity needs; every cut edge is cut once, at its midpoint, and each child lies in its
+    parent's region."""
     count = len(mesh.points)
     cut = closure(mesh, np.asarray(marked, dtype=bool))
     if not len(cut):
@@ -73,7 +75,7 @@ def refine(mesh: SimplexMesh, marked: np.ndarray) -> SimplexMesh:
     big = len(points)
     cut = edge_keys(lo, hi, big)
     midpoint = dict(zip(cut.tolist(), range(count, big)))
-    cells = mesh.cells
+    cells, regions = mesh.cells, mesh.cell_labels()
     # A cell's refinement edge is cut at most twice in a row: the children's refinement
     # edges are the parent's two other edges; the grandchildren's hold a new node, never cut.
     while True:
@@ -84,13 +86,14 @@ def refine(mesh: SimplexMesh, marked: np.ndarray) -> SimplexMesh:
         a, b, c = cells[split].T
         m = np.array([midpoint[k] for k in keys[split].tolist()], dtype=np.int64)
         cells = np.vstack([cells[~split], np.column_stack([a, c, m]), np.column_stack([c, b, m])])
+        regions = np.concatenate([regions[~split], regions[split], regions[split]])
     fkeys = edge_keys(mesh.facets[:, 0], mesh.facets[:, 1], big)
     halved = np.isin(fkeys, cut)
     fm = np.array([midpoint[k] for k in fkeys[halved].tolist()], dtype=np.int64)
     fa, fb = mesh.facets[halved].T
     facets = np.vstack([mesh.facets[~halved], np.column_stack([fa, fm]), np.column_stack([fm, fb])])
     labels = np.concatenate([mesh.labels[~halved], mesh.labels[halved], mesh.labels[halved]])
-    return SimplexMesh(points, cells, facets, labels)
+    return SimplexMesh(points, cells, facets, labels, regions if mesh.regions is not None else None)
 
 
 def uniform(mesh: SimplexMesh, times: int = 1) -> SimplexMesh:

@@ -25,9 +25,10 @@ from harness.mesh.simplex import EDGES, SimplexMesh, positively_oriented
 SPAN = np.int64(1) << 31  # node indices stay below 2^31: one int64 key per edge or face part
 
 
-def start(points: np.ndarray, cells: np.ndarray, facets: np.ndarray, labels: np.ndarray) -> SimplexMesh:
+def start(points: np.ndarray, cells: np.ndarray, facets: np.ndarray, labels: np.ndarray,
+          regions: np.ndarray | None = None) -> SimplexMesh:
     return SimplexMesh(points[:, :3].astype(float), cells.astype(np.int64), facets.astype(np.int64),
-                   labels.astype(np.int64))
+                       labels.astype(np.int64), regions)
 
 
 def edge_key(a: np.ndarray, b: np.ndarray) -> np.ndarray:
@@ -68,8 +69,8 @@ def cell_edge_keys(cells: np.ndarray) -> np.ndarray:
 
 def refine(mesh: SimplexMesh, marked: np.ndarray) -> SimplexMesh:
     """`mesh` with the marked tetrahedra (a boolean mask) bisected at their longest edges, and as
-    many others as conformity needs."""
-    points, cells = mesh.points, mesh.cells
+    many others as conformity needs; each child lies in its parent's region."""
+    points, cells, regions = mesh.points, mesh.cells, mesh.cell_labels()
     facets, labels = mesh.facets, mesh.labels
     ref, _, _ = refinement_keys(points, cells)
     pending = np.unique(ref[np.asarray(marked, dtype=bool)])
@@ -98,8 +99,9 @@ def refine(mesh: SimplexMesh, marked: np.ndarray) -> SimplexMesh:
         two[np.arange(len(rows)), j[rows]] = m
         facets, labels = _halve_facets(facets, labels, cells[rows], i[rows], j[rows], m)
         cells = np.vstack([cells[~split], one, two])
+        regions = np.concatenate([regions[~split], regions[rows], regions[rows]])
         pending = np.intersect1d(pending, cell_edge_keys(cells).ravel())
-    return SimplexMesh(points, cells, facets, labels)
+    return SimplexMesh(points, cells, facets, labels, regions if mesh.regions is not None else None)
 
 
 def _halve_facets(facets: np.ndarray, labels: np.ndarray, split: np.ndarray, i: np.ndarray, j: np.ndarray,

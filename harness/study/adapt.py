@@ -28,6 +28,7 @@ import numpy as np
 
 from harness.mesh import bisection, tet_bisection
 from harness.study.engine import InlineMeshes, Progress, run_levels, runs_of
+from harness.core.contract import BODY_LABEL
 from harness.core.errors import FieldsError, SceneError
 from harness.measure.fields import Fields, read_fields
 from harness.mesh.msh import write_msh
@@ -71,18 +72,23 @@ def check_adaptable(scene: Scene) -> None:
 
 def read_start(path: Path, dimension: int) -> SimplexMesh:
     """The first step's mesh: the case's coarsest level as the harness wrote it (MSH 2.2,
-    role labels in gmsh:physical)."""
+    role labels and the cells' region labels in gmsh:physical)."""
     import meshio  # here: its import is the slow part of start-up
 
     cell_type, facet_type = CELL_TYPES[dimension]
     mesh = meshio.read(path)
     cells = np.vstack([b.data for b in mesh.cells if b.type == cell_type])
-    facets, labels = [], []
+    facets, labels, regions = [], [], []
     for block, physical in zip(mesh.cells, mesh.cell_data["gmsh:physical"]):
         if block.type == facet_type:
             facets.append(block.data)
             labels.append(physical)
-    return REFINERS[dimension].start(mesh.points[:, :dimension], cells, np.vstack(facets), np.concatenate(labels))
+        elif block.type == cell_type:
+            regions.append(physical)
+    # The steps' cells keep their material (a multi-region scene's regions, harness/scene/regions.py).
+    tags = np.concatenate(regions).astype(np.int64)
+    return REFINERS[dimension].start(mesh.points[:, :dimension], cells, np.vstack(facets), np.concatenate(labels),
+                                     None if (tags == BODY_LABEL).all() else tags)
 
 
 def write_step(mesh: SimplexMesh, path: Path) -> dict[str, float]:
