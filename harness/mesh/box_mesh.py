@@ -24,7 +24,7 @@ import numpy as np
 from harness.core.contract import ROLE_LABELS
 from harness.core.errors import MeshError
 from harness.core.gmsh_api import session
-from harness.mesh.simplex import SimplexMesh, positively_oriented
+from harness.mesh.simplex import SimplexMesh, facet_normals, positively_oriented
 from harness.scene.box import Box
 
 # role of a boundary triangle, from its centroid and the outward normal axis (0, 1, 2) and side (-1, +1)
@@ -85,7 +85,7 @@ def boundary_faces(
         for side, value in ((-1, 0.0), (1, lengths[axis])):
             on = np.all(np.abs(points[faces, axis] - value) < tol, axis=1)
             face = faces[on]
-            normal = np.cross(points[face[:, 1]] - points[face[:, 0]], points[face[:, 2]] - points[face[:, 0]])
+            normal = facet_normals(points, face)
             flip = np.sign(normal[:, axis]) != side
             face[flip, 1], face[flip, 2] = face[flip, 2], face[flip, 1].copy()
             centroids = points[face].mean(axis=1)
