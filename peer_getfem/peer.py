@@ -33,7 +33,7 @@ import numpy as np
 
 from gmsh22 import MeshFileError, getfem_mesh, read_msh
 from newton import NewtonResult, Unknowns, newton
-from terms import CONTACT, Problem, macros, reduced, resultants, scales, terms
+from terms import CONTACT, CONTACT_MACROS, Problem, define_functions, macros, reduced, resultants, scales, terms
 
 # Integration: the bulk integrands are at most of degree 2 on P1 (exact with any rule of
 # degree >= 2). The contact integrals use the rules FreeFEM uses: on segments (2D) the
@@ -88,6 +88,7 @@ def solve(spec: dict) -> dict:
     labels = {role: int(label) for role, label in spec["labels"].items()}
     msh = read_msh(Path(spec["mesh"]), p.dimension)
     mesh = getfem_mesh(gf, msh, p.dimension)
+    define_functions(gf)
     mim = gf.MeshIm(mesh, gf.Integ(INTEGRATION[p.dimension]))
     mfu = gf.MeshFem(mesh, p.dimension)
     mfu.set_classical_fem(1)
@@ -214,20 +215,20 @@ def to_scipy(matrix):  # noqa: ANN001, ANN201
 def contact_state(md, mim, mfu, mfs, p: Problem, labels: dict[str, int]):  # noqa: ANN001, ANN201
     """A function giving the contact state of Gamma_3's nodes: closed (some quadrature point
     of a face around the node penetrates, s > 0) and, with friction, slipping (c_nu |u_tau|
-    >= S there). Newton stops only when the last step changed neither."""
+    >= R there, the slip bound of terms.friction). Newton stops only when the last step changed
+    neither."""
     if not p.has("contact"):
         return lambda: np.zeros(0, dtype=bool)
     region = labels[CONTACT]
-    c = p.data["contact"]
     probe = gf.Model("real")  # a test function per node, and u as data
     probe.add_fem_variable("z", mfs)
     probe.add_fem_data("u", mfu)
     for name, expr in macros(p).items():
-        if name in ("Pen", "UTau"):
+        if name in CONTACT_MACROS:
             probe.add_macro(name, expr)
     kinds = ["Heaviside(Pen - 1e-300)"]
     if p.has("friction"):
-        kinds.append(f"Heaviside(Norm({c['c_nu']!r}*UTau) - {c['S']!r})")
+        kinds.append("Heaviside(Norm(Wt) - SlipBound)")  # on the ball's rim or outside: slip
 
     def state() -> np.ndarray:
         probe.set_variable("u", md.variable("u"))

@@ -26,6 +26,8 @@ PLANE_AXES = [0, 2]
 
 # Role labels (harness/contract.py ROLE_LABELS), the GetFEM region numbers.
 CLAMPED, LOADED, FREE, CONTACT = "clamped", "loaded", "free", "contact"
+# The macros of the contact state (macros()): they read u alone, not phi or theta.
+CONTACT_MACROS = ("Pen", "UTau", "SlipBound", "Wt", "Ptau")
 
 
 @dataclass(frozen=True)
@@ -118,7 +120,40 @@ def macros(p: Problem) -> dict[str, str]:
         c = p.data["contact"]
         out["Pen"] = f"({num(s.U)}*(u.Normal) - {num(c['gap'])})"  # s = u_nu - g [m]
         out["UTau"] = f"({num(s.U)}*(u - (u.Normal)*Normal))"  # u_tau [m]
+    if p.has("friction"):
+        out.update(friction(c))
     return out
+
+
+def define_functions(gf) -> None:  # noqa: ANN001 (the getfem module)
+    """GWFL functions the macros call. AtRest(t) = H(-t), 1 at t = 0 and 0 for t > 0, as an
+    indicator whose derivative is 0 (GetFEM will not differentiate Heaviside): it selects a
+    tangent, it is not a term of the residual."""
+    gf.asm_define_function("AtRest", 1, "Heaviside(-t)", "0")
+
+
+def friction(c: dict[str, float]) -> dict[str, str]:
+    """The friction law, once (docs/laws.md): the tangential traction P_B(0,R)(w), w = c_nu u_tau,
+    the projection onto the ball of radius R in the tangent space (an interval in 2D, a disc in
+    3D), whose derivative GetFEM takes itself, in w and in R; and the ball's radius, which also
+    tells stick (|w| < R) from slip (|w| >= R) in the contact state.
+
+    R is the slip bound: Tresca's S, or Coulomb's mu times the normal pressure c_nu (s)_+
+    (contact.friction_law). Coulomb's ball is a point where the contact is open; a point at
+    rest there (w = 0 exactly, the zero and pressed starts) counts as sticking, as in the
+    model's tangent (H(0) = 1 for the normal law likewise): its radius is lifted to 1 N/m^2
+    while w = 0. That changes no value, P_B(0) = 0 for any radius, only the tangent (c_nu I
+    instead of GetFEM's 0 for a ball of radius 0) and the stick/slip state, so that Newton's
+    path is the model's. Tresca keeps S as it is (S = 0 slips)."""
+    law = c.get("friction_law", "tresca")
+    if law == "tresca":
+        bound = num(c["S"])
+    elif law == "coulomb":
+        at_rest = "AtRest(Norm_sqr(UTau))"  # 1 where u_tau = 0 (|u_tau| < 1e-154 m), else 0
+        bound = f"({num(c.get('mu', 0.0))}*{num(c['c_nu'])}*pos_part(Pen) + {at_rest})"
+    else:
+        raise ValueError(f"contact.friction_law {law!r} (tresca | coulomb)")
+    return {"SlipBound": bound, "Wt": f"({num(c['c_nu'])}*UTau)", "Ptau": "Ball_projection(Wt, SlipBound)"}
 
 
 def truncated(t: str, bound: float) -> str:
@@ -158,9 +193,8 @@ def terms(p: Problem) -> list[tuple[str, str]]:
         c = p.data["contact"]
         # Normal compliance: sigma_nu = -c_nu (u_nu - g)_+, tested with v_nu.
         out.append((CONTACT, f"{num(c['c_nu'])}*pos_part(Pen)*(Test_u.Normal)/{num(s.Su)}"))
-        if p.has("friction"):
-            # Tresca: sigma_tau = -P_B(0,S)(c_nu u_tau), a disc in 3D, an interval in 2D.
-            out.append((CONTACT, f"(Ball_projection({num(c['c_nu'])}*UTau, {num(c['S'])}).Test_u)/{num(s.Su)}"))
+        if p.has("friction"):  # sigma_tau = -P_B(0,R)(c_nu u_tau), tested with v_tau
+            out.append((CONTACT, f"(Ptau.Test_u)/{num(s.Su)}"))
     if p.has("electric_contact"):
         e = p.data["electric_contact"]
         flux = conductance(e["k_e"], e["eps_e"]) + "*" + truncated(num(s.Phi) + "*phi - " + num(e["phi_f"]), e["L"])
@@ -182,7 +216,7 @@ def resultants(p: Problem) -> dict[str, str]:
     c = p.data["contact"]
     out["contact_force"] = f"{num(c['c_nu'])}*pos_part(Pen)"
     if p.has("friction"):
-        out["friction_force_vector"] = f"Ball_projection({num(c['c_nu'])}*UTau, {num(c['S'])})"
+        out["friction_force_vector"] = "Ptau"
     if p.has("electric_contact"):
         e = p.data["electric_contact"]
         out["charge_in_contact"] = "-" + conductance(e["k_e"], e["eps_e"]) + "*" + truncated(

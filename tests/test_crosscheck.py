@@ -142,14 +142,40 @@ def test_repeat_times_both_codes_as_whole_processes_with_medians_and_ratios(tmp_
     assert "| paper | zero | 2 |" in (tmp_path / "out" / "timing.md").read_text()
 
 
-@pytest.mark.parametrize("case", ["cantilever.toml", "coulomb.toml"])
-def test_a_coulomb_scene_is_refused_in_one_line_not_compared_with_tresca(case, tmp_path, capsys):
-    """The peer's friction is Tresca's: a Coulomb scene was solved there as Tresca (coulomb
-    'agreed' only where every node sticks) or failed on its missing S."""
-    code = cli.main(["crosscheck", str(CASES / case), "--levels", "2", "--results", str(tmp_path)])
-    err = capsys.readouterr().err.strip().splitlines()
-    assert code == ExitCode.INPUT and len(err) == 1, err
-    assert case in err[0] and "Tresca friction only" in err[0] and "'coulomb'" in err[0]
+@pytest.mark.parametrize("case, levels", [("coulomb.toml", "2,4,8"), ("cantilever.toml", "2,4"),
+                                          ("hard/coulomb_mu_large.toml", "2")])
+def test_the_peer_equals_freefem_under_coulomb_friction(case, levels, tmp_path):
+    """Coulomb's slip bound mu c_nu (u_nu - g)_+ in both codes (docs/laws.md): the fields and
+    the friction force agree to round-off, on the elastic block whose contact zone's ends slip,
+    the PZT cantilever (gmsh, an electrode) and mu = 1e3 (whose zero start restarts from the
+    pressed state). Before the peer had Coulomb's law these scenes were refused."""
+    code, table = crosscheck(tmp_path, str(CASES / case), "--levels", levels)
+    assert code == 0
+    assert (table["status"] == "agree").all()
+    assert (table[field_columns(table)].to_numpy() <= AGREE).all()
+    assert (table["rel_friction_force"] <= AGREE).all() and (table["rel_contact_force"] <= AGREE).all()
+    # Coulomb's inequality |int sigma_tau| <= mu int |sigma_nu| (strict: some of the contact sticks).
+    mu = load_scene(CASES / case).sections.contact.mu
+    assert (table["friction_force_getfem"] < mu * table["contact_force_getfem"]).all()
+
+
+def test_a_peer_with_another_friction_coefficient_is_caught(tmp_path, monkeypatch, capsys):
+    """The peer's mu doubled on its side only: where the contact zone's ends slip (cases/coulomb.toml
+    at n = 4: measured 9.3e-7 relative in u's norm, 6.7e-3 in the friction force), the cross-check
+    must see it: exit 6."""
+    import harness.studies.crosscheck as study
+
+    real = study.problem
+
+    def other(table, *args):  # noqa: ANN001, ANN202
+        return real({**table, "contact": {**table["contact"], "mu": 2 * table["contact"]["mu"]}}, *args)
+
+    monkeypatch.setattr(study, "problem", other)
+    code = cli.main(["crosscheck", str(CASES / "coulomb.toml"), "--levels", "4", "--results", str(tmp_path / "r"),
+                     "--out", str(tmp_path / "out")])
+    assert code == ExitCode.DISAGREE == 6
+    err = capsys.readouterr().err
+    assert err.count("error:") == 1 and "n=4" in err
 
 
 def test_a_rotated_poling_is_refused_in_one_line_not_compared(tmp_path, capsys):

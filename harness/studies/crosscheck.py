@@ -110,9 +110,6 @@ def plans_of(case: Path, overrides: list[str], branches: list[str] | None,
     base = load_scene(case, overrides)
     if base.element != "P1" or base.manufactured:
         raise SceneError(f"{case}: the GetFEM peer solves P1 scenes without manufactured sources")
-    law = base.sections.contact.friction_law if "friction" in base.effects else "tresca"
-    if law != "tresca":  # the peer's friction is Tresca's ball (peer_getfem/terms.py)
-        raise SceneError(f"{case}: the GetFEM peer solves Tresca friction only, not contact.friction_law = {law!r}")
     if floating_macros(base.geometry):  # the peer has no floating electrode: unsupported, not a disagreement
         raise SceneError(f"{case}: the GetFEM peer has no floating electrode (a part with the role 'floating')")
     if base.regions:  # the peer takes one material file (harness/peer.py)
