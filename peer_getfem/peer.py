@@ -31,9 +31,10 @@ except ImportError:
 
 import numpy as np
 
-from gmsh22 import MeshFileError, getfem_mesh, read_msh
+from gmsh22 import CELL_REGION, MeshFileError, getfem_mesh, read_msh
 from newton import NewtonResult, Unknowns, newton
-from terms import CONTACT, CONTACT_MACROS, Problem, define_functions, macros, reduced, resultants, scales, terms
+from rotation import turned
+from terms import CONTACT, CONTACT_MACROS, Body, Problem, define_functions, macros, reduced, resultants, scales, terms
 
 # Integration: the bulk integrands are at most of degree 2 on P1 (exact with any rule of
 # degree >= 2). The contact integrals use the rules FreeFEM uses: on segments (2D) the
@@ -77,9 +78,39 @@ def problem_of(spec: dict) -> Problem:
     data = {k: dict(spec.get(k) or {}) for k in ("loads", "contact", "electric_contact", "thermal_contact")}
     bound = data["electric_contact"].get("L", math.inf)
     data["electric_contact"]["L"] = 1e300 if bound is None or math.isinf(float(bound)) else float(bound)
-    return Problem(dimension, frozenset(spec["effects"]), reduced(spec["material"], dimension), data,
-                   scales(spec["material"], data["electric_contact"].get("phi_f", 0.0),
+    bodies = bodies_of(spec, dimension)
+    return Problem(dimension, frozenset(spec["effects"]), tuple(b for b, _ in bodies), data,
+                   scales(bodies[0][1], data["electric_contact"].get("phi_f", 0.0),
                           data["thermal_contact"].get("theta_f", 0.0), data["loads"].get("electrode_potential", 0.0)))
+
+
+def bodies_of(spec: dict, dimension: int) -> list[tuple[Body, dict]]:
+    """Each body and its material in the scene's axes (3D tensors): the whole body with
+    spec's material, or each material region (spec's "regions": the cells' label, the
+    material, its poling) on its cells. A poling is the unit vector of the scene's
+    dimension along which the material's axis 3 points (None: the file's own axes)."""
+    regions = spec.get("regions") or [{"label": None, "material": spec["material"], "poling": spec.get("poling")}]
+    out = []
+    for r in regions:
+        material = oriented(r["material"], r.get("poling"), dimension)
+        if r["label"] is None:
+            body = Body("bulk", -1, "", reduced(material, dimension))
+        else:
+            label = int(r["label"])
+            body = Body(f"body{label}", CELL_REGION + label, f"R{label}", reduced(material, dimension))
+        out.append((body, material))
+    return out
+
+
+def oriented(material: dict, poling: list[float] | None, dimension: int) -> dict:
+    """The material poled along `poling`; in 2D the drawing's (x, y) are the 3D axes (1, 3),
+    so an in-plane axis (a, b) is the 3D axis (a, 0, b) (docs/model.md section 9)."""
+    if poling is None:
+        return material
+    axis = np.array(poling, float) if dimension == 3 else np.array([poling[0], 0.0, poling[1]], float)
+    if not (np.isfinite(axis).all() and np.linalg.norm(axis) > 0):
+        raise InputError(f"poling axis {poling} (a nonzero vector of {dimension} numbers)")
+    return material if np.array_equal(axis / np.linalg.norm(axis), [0.0, 0.0, 1.0]) else turned(material, axis)
 
 
 def solve(spec: dict) -> dict:
@@ -101,8 +132,9 @@ def solve(spec: dict) -> dict:
         md.add_fem_variable(name, mfs)
     for name, expr in macros(p).items():
         md.add_macro(name, expr)
+    region_of = {b.role: b.region for b in p.bodies}  # the whole body (-1) or a material region's cells
     for role, expr in terms(p):
-        md.add_nonlinear_term(mim, expr, -1 if role == "bulk" else labels[role])
+        md.add_nonlinear_term(mim, expr, region_of[role] if role in region_of else -1 if role == "bulk" else labels[role])
     unknowns = Unknowns(md, fields, dirichlet_dofs(mfu, mfs, fields, labels, p.dimension),
                         electrode(mfs, fields, labels, p))
     setup = time.perf_counter() - clock

@@ -84,12 +84,23 @@ def voigt_to_tensor(s: str, dimension: int) -> str:
 
 
 @dataclass(frozen=True)
+class Body:
+    """A part of the body with one material (reduced): the whole body ("bulk"), or the
+    cells of one material region, GetFEM region `region`, whose law macros carry `suffix`."""
+
+    role: str
+    region: int
+    suffix: str
+    material: dict[str, np.ndarray]
+
+
+@dataclass(frozen=True)
 class Problem:
-    """What the residual needs: dimension, effects, material (reduced), data, scales."""
+    """What the residual needs: dimension, effects, the bodies' materials, data, scales."""
 
     dimension: int
     effects: frozenset[str]
-    material: dict[str, np.ndarray]
+    bodies: tuple[Body, ...]
     data: dict[str, dict[str, float]]
     scales: Scales
 
@@ -97,10 +108,10 @@ class Problem:
         return effect in self.effects
 
 
-def macros(p: Problem) -> dict[str, str]:
-    """GWFL macros: the physical stress (Voigt), electric displacement and heat flux, and
-    the contact quantities, in SI units, from the scaled unknowns."""
-    s, d, mat = p.scales, p.dimension, p.material
+def law_macros(p: Problem, body: Body) -> dict[str, str]:
+    """The physical stress (Voigt), electric displacement and heat flux of one material, in SI
+    units, from the scaled unknowns."""
+    s, d, mat, x = p.scales, p.dimension, body.material, body.suffix
     sigma = f"({num(s.U)}*({matrix(mat['C'])}*{voigt_strain('Grad_u', d)}))"
     dfield = f"(-{num(s.Phi)}*({matrix(mat['beta'])}*Grad_phi))" if p.has("piezoelectric") else ""
     if p.has("piezoelectric"):
@@ -111,11 +122,18 @@ def macros(p: Problem) -> dict[str, str]:
         sigma += f" - {num(s.Theta)}*theta*{matrix(mat['m'])}"
     if p.has("pyroelectric"):
         dfield += f" - {num(s.Theta)}*theta*{matrix(mat['p'])}"
-    out = {"SigV": f"({sigma})"}
+    out = {f"SigV{x}": f"({sigma})"}
     if p.has("piezoelectric"):
-        out["Dv"] = f"({dfield})"
+        out[f"Dv{x}"] = f"({dfield})"
     if p.has("thermal"):
-        out["Qv"] = f"(-{num(s.Theta)}*({matrix(mat['k'])}*Grad_theta))"
+        out[f"Qv{x}"] = f"(-{num(s.Theta)}*({matrix(mat['k'])}*Grad_theta))"
+    return out
+
+
+def macros(p: Problem) -> dict[str, str]:
+    """GWFL macros: each body's law (law_macros) and the contact quantities."""
+    s = p.scales
+    out = {name: expr for body in p.bodies for name, expr in law_macros(p, body).items()}
     if p.has("contact"):
         c = p.data["contact"]
         out["Pen"] = f"({num(s.U)}*(u.Normal) - {num(c['gap'])})"  # s = u_nu - g [m]
@@ -171,7 +189,7 @@ def terms(p: Problem) -> list[tuple[str, str]]:
     equation's scale. The residual is docs/model.md's R_u, R_phi, R_theta."""
     s, d, loads = p.scales, p.dimension, p.data["loads"]
     axes = "xyz"[:d]
-    out = [("bulk", f"({voigt_to_tensor('SigV', d)}):Grad_Test_u/{num(s.Su)}")]
+    out = [(b.role, f"({voigt_to_tensor('SigV' + b.suffix, d)}):Grad_Test_u/{num(s.Su)}") for b in p.bodies]
     traction = [loads.get(f"traction_{a}", 0.0) for a in axes]
     body = [loads.get(f"body_force_{a}", 0.0) for a in axes]
     if any(traction):
@@ -179,14 +197,14 @@ def terms(p: Problem) -> list[tuple[str, str]]:
     if any(body):
         out.append(("bulk", f"-({matrix(np.array(body))}.Test_u)/{num(s.Su)}"))
     if p.has("piezoelectric"):
-        out.append(("bulk", f"-(Dv.Grad_Test_phi)/{num(s.Sphi)}"))
+        out.extend((b.role, f"-(Dv{b.suffix}.Grad_Test_phi)/{num(s.Sphi)}") for b in p.bodies)
         if loads.get("surface_charge", 0.0):
             for role in (LOADED, FREE):  # Gamma_b: D.nu = phi2, entering R_phi with +
                 out.append((role, f"{num(loads['surface_charge'])}*Test_phi/{num(s.Sphi)}"))
         if loads.get("charge_density", 0.0):
             out.append(("bulk", f"-{num(loads['charge_density'])}*Test_phi/{num(s.Sphi)}"))
     if p.has("thermal"):
-        out.append(("bulk", f"-(Qv.Grad_Test_theta)/{num(s.Stheta)}"))
+        out.extend((b.role, f"-(Qv{b.suffix}.Grad_Test_theta)/{num(s.Stheta)}") for b in p.bodies)
         if loads.get("heat_source", 0.0):
             out.append(("bulk", f"-{num(loads['heat_source'])}*Test_theta/{num(s.Stheta)}"))
     if p.has("contact"):
