@@ -19,6 +19,7 @@ import math
 import resource
 import sys
 import time
+from dataclasses import replace
 from pathlib import Path
 
 EXIT_INPUT, EXIT_NOT_CONVERGED, EXIT_NO_GETFEM = 2, 3, 4
@@ -34,7 +35,8 @@ import numpy as np
 from gmsh22 import CELL_REGION, MeshFileError, getfem_mesh, read_msh
 from newton import NewtonResult, Unknowns, newton
 from rotation import turned
-from terms import CONTACT, CONTACT_MACROS, Body, Problem, define_functions, macros, reduced, resultants, scales, terms
+from terms import (CHARGE_OF, CONTACT, CONTACT_MACROS, FLOATING, Body, Problem, define_functions, macros, reduced,
+                   resultants, scales, terms)
 
 # Integration: the bulk integrands are at most of degree 2 on P1 (exact with any rule of
 # degree >= 2). The contact integrals use the rules FreeFEM uses: on segments (2D) the
@@ -118,6 +120,10 @@ def solve(spec: dict) -> dict:
     p = problem_of(spec)
     labels = {role: int(label) for role, label in spec["labels"].items()}
     msh = read_msh(Path(spec["mesh"]), p.dimension)
+    present = set(msh.labels.tolist())
+    p = replace(p, floating=tuple(role for role in FLOATING if role in labels and labels[role] in present))
+    if p.floating and not p.has("piezoelectric"):
+        raise InputError(f"a floating electrode ({p.floating[0]}) needs the effect piezoelectric")
     mesh = getfem_mesh(gf, msh, p.dimension)
     define_functions(gf)
     mim = gf.MeshIm(mesh, gf.Integ(INTEGRATION[p.dimension]))
@@ -136,7 +142,7 @@ def solve(spec: dict) -> dict:
     for role, expr in terms(p):
         md.add_nonlinear_term(mim, expr, region_of[role] if role in region_of else -1 if role == "bulk" else labels[role])
     unknowns = Unknowns(md, fields, dirichlet_dofs(mfu, mfs, fields, labels, p.dimension),
-                        electrode(mfs, fields, labels, p))
+                        electrode(mfs, fields, labels, p), floating(mfs, labels, p))
     setup = time.perf_counter() - clock
     start = spec["start"]
     if start not in ("zero", "pressed", "given"):
@@ -165,7 +171,7 @@ def dirichlet_dofs(mfu, mfs, fields: list[str], labels: dict[str, int], dimensio
     if "phi" in fields:
         out["phi"] = on(mfs, ["clamped", "ground", "electrode"])
     if "theta" in fields:
-        out["theta"] = on(mfs, ["clamped", "loaded", "free", "ground", "electrode"])
+        out["theta"] = on(mfs, ["clamped", "loaded", "free", "ground", "electrode", *FLOATING])
     return out
 
 
@@ -175,6 +181,16 @@ def electrode(mfs, fields: list[str], labels: dict[str, int], p: Problem) -> dic
         return {}
     dofs = np.asarray(mfs.basic_dof_on_region(labels["electrode"]), dtype=int)
     return {"phi": (dofs, p.data["loads"].get("electrode_potential", 0.0) / p.scales.Phi)}
+
+
+def floating(mfs, labels: dict[str, int], p: Problem) -> list[tuple[np.ndarray, float]]:  # noqa: ANN001
+    """phi's dofs on each floating electrode and its net free charge Q over phi's equation
+    scale (docs/model.md, "Floating electrodes": phi uniform and unknown there)."""
+    out = []
+    for role in p.floating:
+        dofs = np.asarray(mfs.basic_dof_on_region(labels[role]), dtype=int)
+        out.append((dofs, float(p.data["loads"].get(CHARGE_OF[role], 0.0)) / p.scales.Sphi))
+    return out
 
 
 def pressed_state(md, mim, mfu, mfs, fields: list[str], labels: dict[str, int], p: Problem,  # noqa: ANN001

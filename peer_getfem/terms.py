@@ -26,6 +26,10 @@ PLANE_AXES = [0, 2]
 
 # Role labels (harness/contract.py ROLE_LABELS), the GetFEM region numbers.
 CLAMPED, LOADED, FREE, CONTACT = "clamped", "loaded", "free", "contact"
+# Floating electrodes (open conductors of Gamma_2: loaded by f2, theta = 0 there), and the
+# [loads] key of each one's net free charge.
+FLOATING = ("floating", "floating_2", "floating_3")
+CHARGE_OF = {role: "floating_charge" + role.removeprefix("floating") for role in FLOATING}
 # The macros of the contact state (macros()): they read u alone, not phi or theta.
 CONTACT_MACROS = ("Pen", "UTau", "SlipBound", "Wt", "Ptau")
 
@@ -103,6 +107,7 @@ class Problem:
     bodies: tuple[Body, ...]
     data: dict[str, dict[str, float]]
     scales: Scales
+    floating: tuple[str, ...] = ()  # the floating electrodes' roles the mesh has
 
     def has(self, effect: str) -> bool:
         return effect in self.effects
@@ -193,7 +198,7 @@ def terms(p: Problem) -> list[tuple[str, str]]:
     traction = [loads.get(f"traction_{a}", 0.0) for a in axes]
     body = [loads.get(f"body_force_{a}", 0.0) for a in axes]
     if any(traction):
-        out.append((LOADED, f"-({matrix(np.array(traction))}.Test_u)/{num(s.Su)}"))
+        out.extend((role, f"-({matrix(np.array(traction))}.Test_u)/{num(s.Su)}") for role in (LOADED, *p.floating))
     if any(body):
         out.append(("bulk", f"-({matrix(np.array(body))}.Test_u)/{num(s.Su)}"))
     if p.has("piezoelectric"):

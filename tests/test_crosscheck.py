@@ -231,3 +231,45 @@ def test_figures_of_a_turned_or_regioned_scene_are_refused_in_one_line(tmp_path,
                      "--figures", str(tmp_path / "fig"), "--results", str(tmp_path)])
     err = capsys.readouterr().err.strip().splitlines()
     assert code == ExitCode.INPUT and len(err) == 1 and "--figures" in err[0], err
+
+
+@pytest.mark.parametrize("case, levels", [(DATA / "floating_layer.toml", "2,4"), (DATA / "floating_pair.toml", "4"),
+                                          (CASES / "force_sensor.toml", "2")])
+def test_the_peer_equals_freefem_with_floating_electrodes(case, levels, tmp_path):
+    """A floating electrode is one unknown potential with its charge given: FreeFEM eliminates it
+    (freefem/floating.idp), the peer reduces its Newton system by the same prolongation, written
+    from docs/model.md (peer_getfem/newton.py). A charged layer (3.5e-6 C/m), two electrodes of
+    their own potentials, the 3D force sensor at open circuit (measured 7.4e-15, 6.7e-15, 4.0e-15).
+    Before, a floating electrode was refused."""
+    code, table = crosscheck(tmp_path, str(case), "--levels", levels)
+    assert code == 0
+    assert (table[field_columns(table)].to_numpy() <= AGREE).all()
+
+
+def test_the_peer_equals_freefem_with_a_floating_electrode_on_the_contact_scene(tmp_path):
+    """The paper's scene with its top's middle floating (loaded by f2 there, theta = 0 there),
+    pressed by its weight: contact, friction, heat and an open electrode together (1.0e-14)."""
+    top = 'geometry.top=[[0.0, 1.0, "free"], [1.0, 3.0, "floating"], [3.0, 4.0, "free"]]'
+    code, table = crosscheck(tmp_path, str(DATA / "paper.toml"), "--levels", "2,4", "--set", top,
+                             "--set", "loads.traction_y=0", "--set", "loads.body_force_y=-50", "--set", "scene.name=open")
+    assert code == 0
+    assert (table[field_columns(table)].to_numpy() <= AGREE).all()
+    assert (table["contact_force_getfem"] > 0).all()
+
+
+def test_a_peer_with_the_opposite_floating_charge_is_caught(tmp_path, monkeypatch, capsys):
+    """The charge's sign is the one thing the elimination adds (R_phi(1 on the electrode) = Q):
+    the peer given -Q must disagree, exit 6."""
+    import harness.studies.crosscheck as study
+
+    real = study.problem
+
+    def opposite(table, *args):  # noqa: ANN001, ANN202
+        loads = {**table["loads"], "floating_charge": -table["loads"]["floating_charge"]}
+        return real({**table, "loads": loads}, *args)
+
+    monkeypatch.setattr(study, "problem", opposite)
+    code = cli.main(["crosscheck", str(DATA / "floating_layer.toml"), "--levels", "2",
+                     "--results", str(tmp_path / "r"), "--out", str(tmp_path / "out")])
+    assert code == ExitCode.DISAGREE == 6
+    assert capsys.readouterr().err.count("error:") == 1

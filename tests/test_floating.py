@@ -139,15 +139,6 @@ def test_only_a_scene_with_a_floating_part_compiles_the_elimination():
     assert floating_macros(load_scene(DATA / "floating_sensor3d.toml").geometry) == {"FLOATING": "1"}
 
 
-def test_crosscheck_refuses_a_floating_electrode_as_unsupported(tmp_path, capsys):
-    """The GetFEM peer has no floating electrode: refused in one line (exit 2), never solved
-    there with the part left free and reported as a disagreement."""
-    code = main(["crosscheck", str(DATA / "floating_layer.toml"), "--levels", "2", "--results", str(tmp_path)])
-    err = capsys.readouterr().err.strip().splitlines()
-    assert code == ExitCode.INPUT and len(err) == 1, err
-    assert "floating_layer.toml" in err[0] and "no floating electrode" in err[0]
-
-
 def test_a_floating_electrode_on_the_contact_scene_is_the_driven_one_of_its_own_potential(tmp_path):
     """With contact, friction and heat (the paper's scene, its top's middle floating with no
     charge, pressed by its weight): an electrode driven at the floating potential found gives the same

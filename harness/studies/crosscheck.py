@@ -19,7 +19,6 @@ from harness.crosscheck import TOLERANCE, differences, integral_differences
 from harness.engine import InlineMeshes, quiet, run_levels, runs_of
 from harness.errors import Disagreement, FieldsError, RunError, SceneError
 from harness.fields import Fields, read_fields
-from harness.floating import floating_macros
 from harness.layout import Layout
 from harness.pipeline import Guarded, Plan, run_pipeline
 from harness.norm_table import MEASURE
@@ -113,8 +112,6 @@ def plans_of(case: Path, overrides: list[str], branches: list[str] | None,
     base = load_scene(case, overrides)
     if base.element != "P1" or base.manufactured:
         raise SceneError(f"{case}: the GetFEM peer solves P1 scenes without manufactured sources")
-    if floating_macros(base.geometry):  # the peer has no floating electrode: unsupported, not a disagreement
-        raise SceneError(f"{case}: the GetFEM peer has no floating electrode (a part with the role 'floating')")
     own = base.sections.scene.coarsest_guess if base.initial_guess == "coarser" else base.initial_guess
     out = []
     for start in branches or [own]:
