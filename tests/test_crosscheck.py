@@ -273,3 +273,18 @@ def test_a_peer_with_the_opposite_floating_charge_is_caught(tmp_path, monkeypatc
                      "--results", str(tmp_path / "r"), "--out", str(tmp_path / "out")])
     assert code == ExitCode.DISAGREE == 6
     assert capsys.readouterr().err.count("error:") == 1
+
+
+def test_the_summary_of_a_scene_without_contact_beside_one_with_it_has_no_integral():
+    """force_sensor (no contact) in one table with contact scenes: its integral columns are empty,
+    its row says so ("–") instead of ending the study in a traceback."""
+    from harness.studies.crosscheck import summary_markdown
+
+    table = pd.DataFrame([
+        {"scene": "paper", "branch": "zero", "dimension": 2, "n": 2, "status": "agree", "rel_u_V": 1e-15,
+         "rel_contact_force": 2e-15, "newton_freefem": 4, "newton_getfem": 4},
+        {"scene": "force_sensor", "branch": "zero", "dimension": 3, "n": 2, "status": "agree", "rel_u_V": 3e-15,
+         "rel_contact_force": np.nan, "newton_freefem": 2, "newton_getfem": 2}])
+    rows = summary_markdown(table).splitlines()
+    assert rows[2].startswith("| paper |") and "2.0e-15 (contact force)" in rows[2]
+    assert rows[3].startswith("| force_sensor |") and "| 3.0e-15 (u V, n = 2) | – |" in rows[3]

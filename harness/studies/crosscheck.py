@@ -282,7 +282,8 @@ def summary_markdown(table: pd.DataFrame) -> str:
         worst = g[fields].stack().astype(float)
         (row, col), value = worst.idxmax(), worst.max()
         where = f"{value:.1e} ({col[4:].replace('_', ' ')}, n = {int(g.loc[row, 'n'])})"
-        ints = g[integrals].stack().astype(float) if integrals else pd.Series(dtype=float)
+        # A scene without contact has no integrals: its columns are empty beside those of the others.
+        ints = g[integrals].stack().astype(float).dropna() if integrals else pd.Series(dtype=float)
         integral = f"{ints.max():.1e} ({ints.idxmax()[1][4:].replace('_', ' ')})" if len(ints) else "–"
         its = lambda code: " ".join(str(int(v)) for v in g[f"newton_{code}"])  # noqa: E731
         status = "DISAGREE" if (g["status"] == "DISAGREE").any() else \
