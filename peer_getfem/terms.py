@@ -24,7 +24,7 @@ import numpy as np
 PLANE_VOIGT = [0, 2, 4]
 PLANE_AXES = [0, 2]
 
-# Role labels (harness/contract.py ROLE_LABELS), the GetFEM region numbers.
+# Role labels (harness/core/contract.py ROLE_LABELS), the GetFEM region numbers.
 CLAMPED, LOADED, FREE, CONTACT = "clamped", "loaded", "free", "contact"
 # Floating electrodes (open conductors of Gamma_2: loaded by f2, theta = 0 there), and the
 # [loads] key of each one's net free charge.
