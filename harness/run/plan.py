@@ -105,30 +105,16 @@ class RunPlan:
     def key(self) -> str:
         return str(self.inputs["key"])
 
-    @property
-    def parallel(self) -> bool:
-        return launcher.ranks_of(self.scene).parallel
-
-    def argv(self, script: Path, work: Path) -> list[str]:
-        """FreeFEM's command line for the main run, its script at `script`."""
-        ranks = launcher.ranks_of(self.scene)
-        options = self.main.bound(work)
-        return ranks.argv(script, options) if ranks.parallel else freefem.command(script, options)
-
-    def post_argv(self, script: Path, work: Path) -> list[str]:
-        assert self.post is not None
-        return freefem.command(script, launcher.without_newton_steps(self.post.bound(work)))
-
 
 def make_plan(scene: Scene, mesh: Path, n: int, layout: Layout, warm: WarmStart | None) -> RunPlan:
     """Level n of `scene` on `mesh`, started from `warm` (a coarser run) when the scene says so."""
     guess, start = start_of(scene, warm)
     main = invocation(scene, mesh, n, layout, guess, start)
+    ranks = launcher.ranks_of(scene)
     post = None
-    if launcher.ranks_of(scene).parallel:
+    if ranks.parallel:
         post = invocation(scene, mesh, n, layout, "file", WarmStart(mesh, Path(PARALLEL_STATE)), sequential=True)
     described = {**scene.run_inputs(), "start": guess}
-    ranks = launcher.ranks_of(scene)
     if ranks.parallel:  # a run on other ranks is another measurement (same solution to round-off)
         described["ranks"] = ranks.count
     if start and start.key:
