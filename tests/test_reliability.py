@@ -347,7 +347,7 @@ def test_a_nameless_os_error_in_a_report_names_the_study_directory(tmp_path):
 
 def test_a_change_to_the_generated_script_is_a_cache_miss(capsys, tmp_path, monkeypatch):
     """Defect 4: a harness change that drops a line of main.edp must not reuse the old runs."""
-    from harness.run import run as run_module
+    from harness.run import plan as run_module
 
     assert run(capsys, tmp_path, "solve", str(STUB_CASE), "--n", "4")[0] == 0
     real = run_module.main_script

@@ -54,7 +54,7 @@ from harness.core.layout import REPO, Layout
 from harness.run.record import read_run_json
 from harness.run.run import WarmStart, run_level
 from harness.scene.scene import Scene, load_scene
-from harness.scene.schema import LINEAR_SOLVERS
+from harness.scene.linear_solvers import SOLVERS
 from harness.study.study import run_study
 from harness.study.pipeline import Guarded, Plan, run_pipeline
 from harness.core.writers import markdown_table, write_csv, write_json, write_text
@@ -107,7 +107,7 @@ def repeat_level(scene: Scene, mesh: Path, n: int, layout: Layout, warm: WarmSta
 def bench_solvers(case: Path, overrides: Sequence[str], levels: Sequence[int], layout: Layout, repeats: int,
                   say: Callable[[str], None]) -> dict[str, list[dict[str, Any]]]:
     out = {}
-    for solver in LINEAR_SOLVERS:
+    for solver in SOLVERS:
         samples = bench_finest(case, [*overrides, f'run.linear_solver="{solver}"'], levels, layout, repeats, say)
         out[f"solver {solver}"] = [{k: s[k] for k in SOLVER_KEYS} for s in samples]
     return out
