@@ -12,6 +12,16 @@
 //   petscStats(id, stats);                             // iterations, residual, times
 //   petscDestroy(id);
 //
+// The Newton method's bulk matrix K lives here, not in FreeFEM (freefem/bulk.idp):
+//
+//   int k = petscBulkCreate(n);
+//   petscBulkAdd(k, Kuu, 0, 0); ...                      // each block varf, then freed by FreeFEM
+//   petscBulkAssemble(k);
+//   petscBulkMult(k, x, y);  petscBulkDiagonal(k, d);     // y = K x, d = diag(K)
+//   petscBulkDirichlet(k, mask);                          // the Newton system's Dirichlet dofs
+//   int its = petscSolveBulk(id, k, T, b, x, rtol, reuse);  // x = (K + T)^-1 b
+//   petscBulkDestroy(k);
+//
 // The unknowns are FreeFEM's Newton vector: the fields concatenated in order, a vector
 // field's components interleaved per node. Each field becomes an index set named after
 // it, so that "-pc_type fieldsplit -fieldsplit_u_pc_type gamg" addresses the displacement;
@@ -452,37 +462,230 @@ PetscErrorCode unusedOptions(const Context &c, std::string *unused) {
   return 0;
 }
 
-// K and T as FreeFEM's sparse matrices, rows in CSR form with sorted columns.
-PetscErrorCode morsePair(Matrice_Creuse<double> *K, Matrice_Creuse<double> *T, MatriceMorse<double> **k,
-                         MatriceMorse<double> **t) {
-  *k = K->A ? dynamic_cast<MatriceMorse<double> *>(&*K->A) : nullptr;
-  *t = T->A ? dynamic_cast<MatriceMorse<double> *>(&*T->A) : nullptr;
-  if (!*k || !*t || (*k)->half || (*t)->half || (*k)->n != (*t)->n || (*k)->m != (*t)->m) {
-    lastMessage = "K and T must be full sparse matrices of one size";
+// A sparse matrix's rows as CSR arrays with sorted columns, whoever owns them.
+struct Csr {
+  PetscInt n = 0;
+  const PetscInt *p = nullptr, *j = nullptr;
+  const PetscScalar *a = nullptr;
+};
+
+// FreeFEM's sparse matrix as CSR (FreeFEM sorts its entries by row in place: no copy).
+PetscErrorCode morseRows(Matrice_Creuse<double> *M, PetscInt n, Csr *out) {
+  MatriceMorse<double> *m = M->A ? dynamic_cast<MatriceMorse<double> *>(&*M->A) : nullptr;
+  if (!m || m->half || m->n != n || m->m != n) {
+    lastMessage = "the contact tangent must be a full sparse matrix of K's size";
     return PETSC_ERR_ARG_WRONG;
   }
-  (*k)->CSR();
-  (*t)->CSR();
+  m->CSR();
+  *out = Csr{(PetscInt)m->n, m->p, m->j, m->aij};
+  return 0;
+}
+
+// The Newton method's bulk matrix K, held by the plugin alone (petscBulk* below): FreeFEM
+// assembles one block varf at a time and hands it over, then frees it, so FreeFEM never holds
+// K, nor two blocks at once. FreeFEM's sparse matrix costs about 40 bytes an entry (indices
+// and a hash beside each value); a block waits here as CSR rows, 12 bytes an entry, until
+// all are in, and K is then one CSR matrix of 12 bytes an entry that PETSc uses in place.
+struct Bulk {
+  struct Chunk {            // one block, its rows (of K's numbering) as CSR, columns sorted
+    PetscInt row0 = 0, col0 = 0;
+    std::vector<PetscInt> ptr, col;
+    std::vector<PetscScalar> val;
+  };
+  PetscInt n = 0;
+  std::vector<Chunk> chunks;
+  std::vector<PetscInt> ia, ja;      // K, once assembled (MatCreateSeqAIJWithArrays uses these)
+  std::vector<PetscScalar> va;
+  Mat K = nullptr;
+  std::vector<PetscInt> dirichlet;   // the rows (and columns) the Newton system makes identity ones
+};
+std::vector<Bulk *> bulks;
+
+Bulk *bulkOf(long id) {
+  if (id < 0 || id >= (long)bulks.size() || !bulks[id]) {
+    lastMessage = "no bulk matrix " + std::to_string(id);
+    return nullptr;
+  }
+  return bulks[id];
+}
+
+long bulkCreate(long const &n) {
+  TRY(start(), "start");
+  Bulk *b = new Bulk;
+  b->n = (PetscInt)n;
+  bulks.push_back(b);
+  return (long)bulks.size() - 1;
+}
+
+// The block A (FreeFEM's, of rows rowOffset.. and columns colOffset.. of K) as a chunk: its
+// entries bucketed by row (FreeFEM keeps them in the order assembly made them), each row's
+// columns sorted. FreeFEM's own sort (CSR()) is not used: it is a heap sort of the whole.
+long bulkAdd(long const &id, Matrice_Creuse<double> *const &A, long const &rowOffset, long const &colOffset) {
+  Bulk *b = bulkOf(id);
+  if (!b) return fail(PETSC_ERR_ARG_OUTOFRANGE, "bulk block");
+  MatriceMorse<double> *m = A->A ? dynamic_cast<MatriceMorse<double> *>(&*A->A) : nullptr;
+  if (!m || m->half || b->K || rowOffset < 0 || colOffset < 0 || rowOffset + m->n > b->n ||
+      colOffset + m->m > b->n) {
+    lastMessage = "a bulk block must be a full sparse matrix inside K, given before K is assembled";
+    return fail(PETSC_ERR_ARG_WRONG, "bulk block");
+  }
+  Bulk::Chunk c;
+  c.row0 = (PetscInt)rowOffset;
+  c.col0 = (PetscInt)colOffset;
+  size_t nnz = m->nnz;
+  c.ptr.assign(m->n + 1, 0);
+  for (size_t k = 0; k < nnz; ++k) ++c.ptr[m->i[k] + 1];
+  for (long r = 0; r < m->n; ++r) c.ptr[r + 1] += c.ptr[r];
+  std::vector<PetscInt> fill(c.ptr.begin(), c.ptr.end() - 1);
+  c.col.resize(nnz);
+  c.val.resize(nnz);
+  for (size_t k = 0; k < nnz; ++k) {
+    PetscInt q = fill[m->i[k]]++;
+    c.col[q] = m->j[k] + c.col0;
+    c.val[q] = m->aij[k];
+  }
+  std::vector<std::pair<PetscInt, PetscScalar>> row;
+  for (long r = 0; r < m->n; ++r) {
+    row.clear();
+    for (PetscInt q = c.ptr[r]; q < c.ptr[r + 1]; ++q) row.emplace_back(c.col[q], c.val[q]);
+    std::sort(row.begin(), row.end(), [](const std::pair<PetscInt, PetscScalar> &x,
+                                         const std::pair<PetscInt, PetscScalar> &y) { return x.first < y.first; });
+    for (size_t k = 0; k < row.size(); ++k) {
+      c.col[c.ptr[r] + k] = row[k].first;
+      c.val[c.ptr[r] + k] = row[k].second;
+    }
+  }
+  b->chunks.push_back(std::move(c));
+  return 0;
+}
+
+// K from its chunks: row by row their rows one after the other, the chunks in the order of
+// their columns, so each row's columns come out sorted; each chunk is freed once copied.
+long bulkAssemble(long const &id) {
+  Bulk *b = bulkOf(id);
+  if (!b) return fail(PETSC_ERR_ARG_OUTOFRANGE, "bulk matrix");
+  if (b->K) return 0;
+  std::stable_sort(b->chunks.begin(), b->chunks.end(),
+                   [](const Bulk::Chunk &x, const Bulk::Chunk &y) { return x.col0 < y.col0; });
+  b->ia.assign(b->n + 1, 0);
+  for (const Bulk::Chunk &c : b->chunks)
+    for (size_t r = 0; r + 1 < c.ptr.size(); ++r) b->ia[c.row0 + r + 1] += c.ptr[r + 1] - c.ptr[r];
+  for (PetscInt r = 0; r < b->n; ++r) b->ia[r + 1] += b->ia[r];
+  b->ja.resize(b->ia[b->n]);
+  b->va.resize(b->ia[b->n]);
+  std::vector<PetscInt> fill(b->ia.begin(), b->ia.end() - 1);
+  for (Bulk::Chunk &c : b->chunks) {
+    for (size_t r = 0; r + 1 < c.ptr.size(); ++r) {
+      PetscInt &q = fill[c.row0 + r];
+      for (PetscInt k = c.ptr[r]; k < c.ptr[r + 1]; ++k, ++q) {
+        b->ja[q] = c.col[k];
+        b->va[q] = c.val[k];
+      }
+    }
+    std::vector<PetscInt>().swap(c.ptr);
+    std::vector<PetscInt>().swap(c.col);
+    std::vector<PetscScalar>().swap(c.val);
+  }
+  b->chunks.clear();
+  for (PetscInt r = 0; r < b->n; ++r)
+    for (PetscInt q = b->ia[r] + 1; q < b->ia[r + 1]; ++q)
+      if (b->ja[q - 1] >= b->ja[q]) {
+        lastMessage = "two bulk blocks overlap in row " + std::to_string(r);
+        return fail(PETSC_ERR_ARG_WRONG, "bulk matrix");
+      }
+  TRY(MatCreateSeqAIJWithArrays(PETSC_COMM_SELF, b->n, b->n, b->ia.data(), b->ja.data(), b->va.data(), &b->K),
+      "bulk matrix");
+  return 0;
+}
+
+Csr bulkRows(const Bulk &b) { return Csr{b.n, b.ia.data(), b.ja.data(), b.va.data()}; }
+
+PetscErrorCode vectorOf(KN<double> *v, PetscInt n, Vec *out) {
+  if (v->N() != n) {
+    lastMessage = "a vector of size " + std::to_string(v->N()) + " where K has " + std::to_string(n) + " rows";
+    return PETSC_ERR_ARG_SIZ;
+  }
+  return VecCreateSeqWithArray(PETSC_COMM_SELF, 1, n, (PetscScalar *)(double *)*v, out);
+}
+
+// y = K x (the bulk residual's product, every row: the Dirichlet rows are K's own).
+long bulkMult(long const &id, KN<double> *const &x, KN<double> *const &y) {
+  Bulk *b = bulkOf(id);
+  if (!b || !b->K) return fail(PETSC_ERR_ARG_WRONGSTATE, "K x");
+  if (y->N() != b->n) y->resize(b->n);
+  Vec vx, vy;
+  TRY(vectorOf(x, b->n, &vx), "K x");
+  TRY(vectorOf(y, b->n, &vy), "K x");
+  TRY(MatMult(b->K, vx, vy), "K x");
+  VecDestroy(&vx);
+  VecDestroy(&vy);
+  return 0;
+}
+
+long bulkDiagonal(long const &id, KN<double> *const &d) {
+  Bulk *b = bulkOf(id);
+  if (!b || !b->K) return fail(PETSC_ERR_ARG_WRONGSTATE, "K's diagonal");
+  if (d->N() != b->n) d->resize(b->n);
+  Vec vd;
+  TRY(vectorOf(d, b->n, &vd), "K's diagonal");
+  TRY(MatGetDiagonal(b->K, vd), "K's diagonal");
+  VecDestroy(&vd);
+  return 0;
+}
+
+// The Newton system's Dirichlet dofs (mask != 0): identity rows and columns in K + T.
+long bulkDirichlet(long const &id, KN<double> *const &mask) {
+  Bulk *b = bulkOf(id);
+  if (!b || mask->N() != b->n) return fail(PETSC_ERR_ARG_SIZ, "Dirichlet dofs");
+  b->dirichlet.clear();
+  for (PetscInt i = 0; i < b->n; ++i) if ((*mask)[i] != 0) b->dirichlet.push_back(i);
+  return 0;
+}
+
+// K's entries, one "i j value" line each (0-based, rows sorted), under the header FreeFEM
+// writes for its own sparse matrices ("n m nnz half fortran state"), for a test that compares
+// K with FreeFEM's.
+long bulkWrite(long const &id, string *const &file) {
+  Bulk *b = bulkOf(id);
+  if (!b || !b->K) return fail(PETSC_ERR_ARG_WRONGSTATE, "writing K");
+  std::ofstream out(file->c_str());
+  out.precision(20);
+  out << "#  the bulk matrix K held by PETSc, as FreeFEM writes a sparse matrix\n"
+      << "#    n       m        nnz     half     fortran   state\n"
+      << b->n << " " << b->n << " " << b->ia[b->n] << " 0 0 2\n";
+  for (PetscInt r = 0; r < b->n; ++r)
+    for (PetscInt q = b->ia[r]; q < b->ia[r + 1]; ++q) out << r << " " << b->ja[q] << " " << b->va[q] << "\n";
+  if (!out) {
+    lastMessage = "cannot write " + *file;
+    return fail(PETSC_ERR_FILE_WRITE, "writing K");
+  }
+  return 0;
+}
+
+long bulkDestroy(long const &id) {
+  Bulk *b = id >= 0 && id < (long)bulks.size() ? bulks[id] : nullptr;
+  if (!b) return 0;
+  MatDestroy(&b->K);   // before the arrays it uses
+  delete b;
+  bulks[id] = nullptr;
   return 0;
 }
 
 // The operator's pattern: K's extended by T's, built once per T pattern, values zero. Row by
-// row into an exactly preallocated matrix: no CSR copy of K is ever held beside it (a copy of
-// K's values and columns, a CSR matrix made from them and its duplicate were three copies of K
-// at the first step, and the last one stayed for every step: issue 30's profile).
-PetscErrorCode sumPattern(Context &c, MatriceMorse<double> *k, MatriceMorse<double> *t) {
-  auto rowUnion = [&](int i, std::vector<PetscInt> *cols) {
+// row into an exactly preallocated matrix.
+PetscErrorCode sumPattern(Context &c, const Csr &k, const Csr &t) {
+  auto rowUnion = [&](PetscInt i, std::vector<PetscInt> *cols) {
     cols->clear();
-    int a = k->p[i], ae = k->p[i + 1], b = t->p[i], be = t->p[i + 1];
+    PetscInt a = k.p[i], ae = k.p[i + 1], b = t.p[i], be = t.p[i + 1];
     while (a < ae || b < be) {
-      if (b >= be || (a < ae && k->j[a] < t->j[b])) cols->push_back(k->j[a++]);
-      else if (a >= ae || t->j[b] < k->j[a]) cols->push_back(t->j[b++]);
-      else { cols->push_back(k->j[a]); ++a; ++b; }
+      if (b >= be || (a < ae && k.j[a] < t.j[b])) cols->push_back(k.j[a++]);
+      else if (a >= ae || t.j[b] < k.j[a]) cols->push_back(t.j[b++]);
+      else { cols->push_back(k.j[a]); ++a; ++b; }
     }
   };
-  std::vector<PetscInt> counts(k->n), cols;
+  std::vector<PetscInt> counts(k.n), cols;
   size_t widest = 0;
-  for (int i = 0; i < k->n; ++i) {
+  for (PetscInt i = 0; i < k.n; ++i) {
     rowUnion(i, &cols);
     counts[i] = (PetscInt)cols.size();
     widest = std::max(widest, cols.size());
@@ -490,11 +693,11 @@ PetscErrorCode sumPattern(Context &c, MatriceMorse<double> *k, MatriceMorse<doub
   std::vector<PetscScalar> zeros(widest, 0.0);
   PetscCall(MatDestroy(&c.op));
   PetscCall(MatCreate(PETSC_COMM_SELF, &c.op));
-  PetscCall(MatSetSizes(c.op, k->n, k->n, k->n, k->n));
+  PetscCall(MatSetSizes(c.op, k.n, k.n, k.n, k.n));
   PetscCall(MatSetType(c.op, MATSEQAIJ));
   PetscCall(MatSeqAIJSetPreallocation(c.op, 0, counts.data()));
-  for (PetscInt i = 0; i < k->n; ++i) {
-    rowUnion((int)i, &cols);
+  for (PetscInt i = 0; i < k.n; ++i) {
+    rowUnion(i, &cols);
     PetscCall(MatSetValues(c.op, 1, &i, (PetscInt)cols.size(), cols.data(), zeros.data(), INSERT_VALUES));
   }
   PetscCall(MatAssemblyBegin(c.op, MAT_FINAL_ASSEMBLY));
@@ -503,21 +706,21 @@ PetscErrorCode sumPattern(Context &c, MatriceMorse<double> *k, MatriceMorse<doub
 
 // op's values := K's, zero where only T has an entry (each step starts from K again, in
 // place). *fits is false when an entry of K has no place in op's pattern.
-PetscErrorCode fillFromK(Mat op, MatriceMorse<double> *k, bool *fits) {
+PetscErrorCode fillFromK(Mat op, const Csr &k, bool *fits) {
   PetscInt n;
   const PetscInt *ia, *ja;
   PetscBool done;
   PetscCall(MatGetRowIJ(op, 0, PETSC_FALSE, PETSC_FALSE, &n, &ia, &ja, &done));
-  *fits = done && n == k->n;
+  *fits = done && n == k.n;
   if (*fits) {
     PetscScalar *a;
     PetscCall(MatSeqAIJGetArray(op, &a));
     for (PetscInt i = 0; i < n && *fits; ++i) {
       PetscInt p = ia[i], pe = ia[i + 1];
-      for (int q = k->p[i]; q < k->p[i + 1] && *fits; ++q) {
-        while (p < pe && ja[p] < k->j[q]) a[p++] = 0.0;
-        *fits = p < pe && ja[p] == k->j[q];
-        if (*fits) a[p++] = k->aij[q];
+      for (PetscInt q = k.p[i]; q < k.p[i + 1] && *fits; ++q) {
+        while (p < pe && ja[p] < k.j[q]) a[p++] = 0.0;
+        *fits = p < pe && ja[p] == k.j[q];
+        if (*fits) a[p++] = k.a[q];
       }
       while (p < pe) a[p++] = 0.0;
     }
@@ -546,25 +749,25 @@ PetscErrorCode within(Mat t, Mat a, bool *inside) {
 }
 
 // The operator K + T with Dirichlet rows and columns as identity ones, in the one PETSc matrix
-// op: K's values written into it from FreeFEM's K, then T added (T lives on Gamma_3's rows).
-// FreeFEM never forms K + T, and PETSc holds no copy of K beside op.
-PetscErrorCode sumOperator(Context &c, Matrice_Creuse<double> *K, Matrice_Creuse<double> *T) {
-  MatriceMorse<double> *k, *tm;
-  PetscCall(morsePair(K, T, &k, &tm));
+// op: K's values written into it, then T added (T lives on Gamma_3's rows). FreeFEM never
+// forms K + T; beside op PETSc holds K itself, for the residual's K x.
+PetscErrorCode sumOperator(Context &c, const Bulk &b, Matrice_Creuse<double> *T) {
+  Csr k = bulkRows(b), tr;
+  PetscCall(morseRows(T, b.n, &tr));
   Mat t;
   PetscCall(toPetsc(T, &t));
   bool inside = false, fits = false;
   if (c.op) PetscCall(within(t, c.op, &inside));
   if (inside) PetscCall(fillFromK(c.op, k, &fits));
   if (!fits) {
-    PetscCall(sumPattern(c, k, tm));
+    PetscCall(sumPattern(c, k, tr));
     PetscCall(fillFromK(c.op, k, &fits));
     if (!fits) {
       lastMessage = "K's entries do not fit the pattern of K + T";
       return PETSC_ERR_PLIB;
     }
-    PetscCall(dirichletRows(c.op, &c.dirichlet));
   }
+  c.dirichlet = b.dirichlet;
   PetscCall(MatAXPY(c.op, 1.0, t, SUBSET_NONZERO_PATTERN));
   PetscCall(MatDestroy(&t));
   return MatZeroRowsColumns(c.op, (PetscInt)c.dirichlet.size(), c.dirichlet.data(), 1.0, nullptr, nullptr);
@@ -595,14 +798,16 @@ long solve(long const &id, Matrice_Creuse<double> *const &A, KN<double> *const &
   return krylov(c, b, x, rtol, reuse);
 }
 
-// The same with the operator K + T, K the same matrix at every call (the Newton method's
-// bulk matrix) and T its low-rank change (the contact tangent).
-long solveSum(long const &id, Matrice_Creuse<double> *const &K, Matrice_Creuse<double> *const &T,
-              KN<double> *const &b, KN<double> *const &x, double const &rtol, long const &reuse) {
+// The same with the operator K + T: K the bulk matrix `bulk` (petscBulk*), T its low-rank
+// change (the contact tangent, on Gamma_3's rows), the Dirichlet dofs K's.
+long solveBulk(long const &id, long const &bulk, Matrice_Creuse<double> *const &T, KN<double> *const &b,
+               KN<double> *const &x, double const &rtol, long const &reuse) {
   Context *c = context(id);
   if (!c) return fail(PETSC_ERR_ARG_OUTOFRANGE, "solve");
+  Bulk *k = bulkOf(bulk);
+  if (!k || !k->K) return fail(PETSC_ERR_ARG_WRONGSTATE, "solve");
   double c0 = cpu();
-  if (reuse < 2 || !c->op) TRY(sumOperator(*c, K, T), "matrix K + T");
+  if (reuse < 2 || !c->op) TRY(sumOperator(*c, *k, T), "matrix K + T");
   c->cpuOperator = cpu() - c0;
   c->peakOperator = peakMb();
   return krylov(c, b, x, rtol, reuse);
@@ -752,6 +957,7 @@ long destroy(long const &id) {
 // PETSc finalised before FreeFEM ends (and before FreeFem++-mpi's MPI_Finalize).
 void finish() {
   for (long id = 0; id < (long)contexts.size(); ++id) destroy(id);
+  for (long id = 0; id < (long)bulks.size(); ++id) bulkDestroy(id);
   if (started) PetscFinalize();
   started = false;
 }
@@ -763,9 +969,17 @@ static void init() {
              new OneOperator6_<long, string *, string *, KN<long> *, KN<long> *, KN<double> *, KN<double> *>(create));
   Global.Add("petscSolve", "(",
              new OneOperator6_<long, long, Matrice_Creuse<double> *, KN<double> *, KN<double> *, double, long>(solve));
-  Global.Add("petscSolveSum", "(",
-             new OneOperator7_<long, long, Matrice_Creuse<double> *, Matrice_Creuse<double> *, KN<double> *,
-                                KN<double> *, double, long>(solveSum));
+  Global.Add("petscSolveBulk", "(",
+             new OneOperator7_<long, long, long, Matrice_Creuse<double> *, KN<double> *, KN<double> *, double,
+                                long>(solveBulk));
+  Global.Add("petscBulkCreate", "(", new OneOperator1_<long, long>(bulkCreate));
+  Global.Add("petscBulkAdd", "(", new OneOperator4_<long, long, Matrice_Creuse<double> *, long, long>(bulkAdd));
+  Global.Add("petscBulkAssemble", "(", new OneOperator1_<long, long>(bulkAssemble));
+  Global.Add("petscBulkMult", "(", new OneOperator3_<long, long, KN<double> *, KN<double> *>(bulkMult));
+  Global.Add("petscBulkDiagonal", "(", new OneOperator2_<long, long, KN<double> *>(bulkDiagonal));
+  Global.Add("petscBulkDirichlet", "(", new OneOperator2_<long, long, KN<double> *>(bulkDirichlet));
+  Global.Add("petscBulkWrite", "(", new OneOperator2_<long, long, string *>(bulkWrite));
+  Global.Add("petscBulkDestroy", "(", new OneOperator1_<long, long>(bulkDestroy));
   Global.Add("petscStats", "(", new OneOperator2_<long, long, KN<double> *>(stats));
   Global.Add("petscAddLevel", "(", new OneOperator2_<long, long, Matrice_Creuse<double> *>(addLevel));
   Global.Add("petscDestroy", "(", new OneOperator1_<long, long>(destroy));
