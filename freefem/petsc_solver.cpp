@@ -462,30 +462,17 @@ PetscErrorCode unusedOptions(const Context &c, std::string *unused) {
   return 0;
 }
 
-// A sparse matrix's rows as CSR arrays with sorted columns, whoever owns them.
-struct Csr {
-  PetscInt n = 0;
-  const PetscInt *p = nullptr, *j = nullptr;
-  const PetscScalar *a = nullptr;
-};
-
-// FreeFEM's sparse matrix as CSR (FreeFEM sorts its entries by row in place: no copy).
-PetscErrorCode morseRows(Matrice_Creuse<double> *M, PetscInt n, Csr *out) {
-  MatriceMorse<double> *m = M->A ? dynamic_cast<MatriceMorse<double> *>(&*M->A) : nullptr;
-  if (!m || m->half || m->n != n || m->m != n) {
-    lastMessage = "the contact tangent must be a full sparse matrix of K's size";
-    return PETSC_ERR_ARG_WRONG;
-  }
-  m->CSR();
-  *out = Csr{(PetscInt)m->n, m->p, m->j, m->aij};
-  return 0;
-}
-
 // The Newton method's bulk matrix K, held by the plugin alone (petscBulk* below): FreeFEM
 // assembles one block varf at a time and hands it over, then frees it, so FreeFEM never holds
 // K, nor two blocks at once. FreeFEM's sparse matrix costs about 40 bytes an entry (indices
-// and a hash beside each value); a block waits here as CSR rows, 12 bytes an entry, until
-// all are in, and K is then one CSR matrix of 12 bytes an entry that PETSc uses in place.
+// and a hash beside each value); a block waits here as CSR rows, 12 bytes an entry, until all
+// are in, and K is then one PETSc matrix J of 12 bytes an entry.
+//
+// J is also the Newton operator K + T (T the contact tangent, on Gamma_3's rows) with the
+// Dirichlet rows and columns made identity ones: no second copy of K is kept beside it. Where
+// J differs from K (the rows of T and the Dirichlet rows, whole; the Dirichlet columns of the
+// other rows, which hold zeros in J) K's values are kept aside, a few per cent of K, and
+// serve to put K back into J before the next T, and to correct J x into K x.
 struct Bulk {
   struct Chunk {            // one block, its rows (of K's numbering) as CSR, columns sorted
     PetscInt row0 = 0, col0 = 0;
@@ -494,10 +481,15 @@ struct Bulk {
   };
   PetscInt n = 0;
   std::vector<Chunk> chunks;
-  std::vector<PetscInt> ia, ja;      // K, once assembled (MatCreateSeqAIJWithArrays uses these)
-  std::vector<PetscScalar> va;
-  Mat K = nullptr;
+  Mat J = nullptr;                   // K once assembled; K + T with identity Dirichlet rows when !clean
+  bool clean = true;                 // J holds K
   std::vector<PetscInt> dirichlet;   // the rows (and columns) the Newton system makes identity ones
+  // K where J differs from it: whole rows (sRows, CSR over J's pattern) and single entries of
+  // the other rows (dPos into J's values, their row, column and K's value).
+  std::vector<char> whole;
+  std::vector<PetscInt> sRows, sPtr, sCols, dPos, dRow, dCol;
+  std::vector<PetscScalar> sVals, dVals;
+  bool captured = false;
 };
 std::vector<Bulk *> bulks;
 
@@ -524,7 +516,7 @@ long bulkAdd(long const &id, Matrice_Creuse<double> *const &A, long const &rowOf
   Bulk *b = bulkOf(id);
   if (!b) return fail(PETSC_ERR_ARG_OUTOFRANGE, "bulk block");
   MatriceMorse<double> *m = A->A ? dynamic_cast<MatriceMorse<double> *>(&*A->A) : nullptr;
-  if (!m || m->half || b->K || rowOffset < 0 || colOffset < 0 || rowOffset + m->n > b->n ||
+  if (!m || m->half || b->J || rowOffset < 0 || colOffset < 0 || rowOffset + m->n > b->n ||
       colOffset + m->m > b->n) {
     lastMessage = "a bulk block must be a full sparse matrix inside K, given before K is assembled";
     return fail(PETSC_ERR_ARG_WRONG, "bulk block");
@@ -559,174 +551,152 @@ long bulkAdd(long const &id, Matrice_Creuse<double> *const &A, long const &rowOf
   return 0;
 }
 
-// K from its chunks: row by row their rows one after the other, the chunks in the order of
-// their columns, so each row's columns come out sorted; each chunk is freed once copied.
-long bulkAssemble(long const &id) {
-  Bulk *b = bulkOf(id);
-  if (!b) return fail(PETSC_ERR_ARG_OUTOFRANGE, "bulk matrix");
-  if (b->K) return 0;
-  std::stable_sort(b->chunks.begin(), b->chunks.end(),
+// K from its chunks into an exactly preallocated PETSc matrix, each chunk freed once in: row by
+// row the chunks in the order of their columns, so each row is filled from left to right.
+PetscErrorCode assembleChunks(Bulk &b) {
+  std::stable_sort(b.chunks.begin(), b.chunks.end(),
                    [](const Bulk::Chunk &x, const Bulk::Chunk &y) { return x.col0 < y.col0; });
-  b->ia.assign(b->n + 1, 0);
-  for (const Bulk::Chunk &c : b->chunks)
-    for (size_t r = 0; r + 1 < c.ptr.size(); ++r) b->ia[c.row0 + r + 1] += c.ptr[r + 1] - c.ptr[r];
-  for (PetscInt r = 0; r < b->n; ++r) b->ia[r + 1] += b->ia[r];
-  b->ja.resize(b->ia[b->n]);
-  b->va.resize(b->ia[b->n]);
-  std::vector<PetscInt> fill(b->ia.begin(), b->ia.end() - 1);
-  for (Bulk::Chunk &c : b->chunks) {
+  std::vector<PetscInt> counts(b.n, 0);
+  PetscInt total = 0;
+  for (const Bulk::Chunk &c : b.chunks)
+    for (size_t r = 0; r + 1 < c.ptr.size(); ++r) counts[c.row0 + r] += c.ptr[r + 1] - c.ptr[r];
+  for (PetscInt r = 0; r < b.n; ++r) total += counts[r];
+  PetscCall(MatCreate(PETSC_COMM_SELF, &b.J));
+  PetscCall(MatSetSizes(b.J, b.n, b.n, b.n, b.n));
+  PetscCall(MatSetType(b.J, MATSEQAIJ));
+  PetscCall(MatSeqAIJSetPreallocation(b.J, 0, counts.data()));
+  PetscCall(MatSetOption(b.J, MAT_NEW_NONZERO_ALLOCATION_ERR, PETSC_TRUE));
+  for (Bulk::Chunk &c : b.chunks) {
     for (size_t r = 0; r + 1 < c.ptr.size(); ++r) {
-      PetscInt &q = fill[c.row0 + r];
-      for (PetscInt k = c.ptr[r]; k < c.ptr[r + 1]; ++k, ++q) {
-        b->ja[q] = c.col[k];
-        b->va[q] = c.val[k];
-      }
+      PetscInt row = c.row0 + (PetscInt)r, count = c.ptr[r + 1] - c.ptr[r];
+      if (count)
+        PetscCall(MatSetValues(b.J, 1, &row, count, c.col.data() + c.ptr[r], c.val.data() + c.ptr[r], INSERT_VALUES));
     }
     std::vector<PetscInt>().swap(c.ptr);
     std::vector<PetscInt>().swap(c.col);
     std::vector<PetscScalar>().swap(c.val);
   }
-  b->chunks.clear();
-  for (PetscInt r = 0; r < b->n; ++r)
-    for (PetscInt q = b->ia[r] + 1; q < b->ia[r + 1]; ++q)
-      if (b->ja[q - 1] >= b->ja[q]) {
-        lastMessage = "two bulk blocks overlap in row " + std::to_string(r);
-        return fail(PETSC_ERR_ARG_WRONG, "bulk matrix");
-      }
-  TRY(MatCreateSeqAIJWithArrays(PETSC_COMM_SELF, b->n, b->n, b->ia.data(), b->ja.data(), b->va.data(), &b->K),
-      "bulk matrix");
-  return 0;
-}
-
-Csr bulkRows(const Bulk &b) { return Csr{b.n, b.ia.data(), b.ja.data(), b.va.data()}; }
-
-PetscErrorCode vectorOf(KN<double> *v, PetscInt n, Vec *out) {
-  if (v->N() != n) {
-    lastMessage = "a vector of size " + std::to_string(v->N()) + " where K has " + std::to_string(n) + " rows";
-    return PETSC_ERR_ARG_SIZ;
-  }
-  return VecCreateSeqWithArray(PETSC_COMM_SELF, 1, n, (PetscScalar *)(double *)*v, out);
-}
-
-// y = K x (the bulk residual's product, every row: the Dirichlet rows are K's own).
-long bulkMult(long const &id, KN<double> *const &x, KN<double> *const &y) {
-  Bulk *b = bulkOf(id);
-  if (!b || !b->K) return fail(PETSC_ERR_ARG_WRONGSTATE, "K x");
-  if (y->N() != b->n) y->resize(b->n);
-  Vec vx, vy;
-  TRY(vectorOf(x, b->n, &vx), "K x");
-  TRY(vectorOf(y, b->n, &vy), "K x");
-  TRY(MatMult(b->K, vx, vy), "K x");
-  VecDestroy(&vx);
-  VecDestroy(&vy);
-  return 0;
-}
-
-long bulkDiagonal(long const &id, KN<double> *const &d) {
-  Bulk *b = bulkOf(id);
-  if (!b || !b->K) return fail(PETSC_ERR_ARG_WRONGSTATE, "K's diagonal");
-  if (d->N() != b->n) d->resize(b->n);
-  Vec vd;
-  TRY(vectorOf(d, b->n, &vd), "K's diagonal");
-  TRY(MatGetDiagonal(b->K, vd), "K's diagonal");
-  VecDestroy(&vd);
-  return 0;
-}
-
-// The Newton system's Dirichlet dofs (mask != 0): identity rows and columns in K + T.
-long bulkDirichlet(long const &id, KN<double> *const &mask) {
-  Bulk *b = bulkOf(id);
-  if (!b || mask->N() != b->n) return fail(PETSC_ERR_ARG_SIZ, "Dirichlet dofs");
-  b->dirichlet.clear();
-  for (PetscInt i = 0; i < b->n; ++i) if ((*mask)[i] != 0) b->dirichlet.push_back(i);
-  return 0;
-}
-
-// K's entries, one "i j value" line each (0-based, rows sorted), under the header FreeFEM
-// writes for its own sparse matrices ("n m nnz half fortran state"), for a test that compares
-// K with FreeFEM's.
-long bulkWrite(long const &id, string *const &file) {
-  Bulk *b = bulkOf(id);
-  if (!b || !b->K) return fail(PETSC_ERR_ARG_WRONGSTATE, "writing K");
-  std::ofstream out(file->c_str());
-  out.precision(20);
-  out << "#  the bulk matrix K held by PETSc, as FreeFEM writes a sparse matrix\n"
-      << "#    n       m        nnz     half     fortran   state\n"
-      << b->n << " " << b->n << " " << b->ia[b->n] << " 0 0 2\n";
-  for (PetscInt r = 0; r < b->n; ++r)
-    for (PetscInt q = b->ia[r]; q < b->ia[r + 1]; ++q) out << r << " " << b->ja[q] << " " << b->va[q] << "\n";
-  if (!out) {
-    lastMessage = "cannot write " + *file;
-    return fail(PETSC_ERR_FILE_WRITE, "writing K");
+  b.chunks.clear();
+  PetscCall(MatAssemblyBegin(b.J, MAT_FINAL_ASSEMBLY));
+  PetscCall(MatAssemblyEnd(b.J, MAT_FINAL_ASSEMBLY));
+  MatInfo info;
+  PetscCall(MatGetInfo(b.J, MAT_LOCAL, &info));
+  if ((PetscInt)info.nz_used != total) {
+    lastMessage = "two bulk blocks overlap (" + std::to_string((long)info.nz_used) + " entries where the blocks have " +
+                  std::to_string(total) + ")";
+    return PETSC_ERR_ARG_WRONG;
   }
   return 0;
 }
 
-long bulkDestroy(long const &id) {
-  Bulk *b = id >= 0 && id < (long)bulks.size() ? bulks[id] : nullptr;
-  if (!b) return 0;
-  MatDestroy(&b->K);   // before the arrays it uses
-  delete b;
-  bulks[id] = nullptr;
+long bulkAssemble(long const &id) {
+  Bulk *b = bulkOf(id);
+  if (!b) return fail(PETSC_ERR_ARG_OUTOFRANGE, "bulk matrix");
+  if (!b->J) TRY(assembleChunks(*b), "bulk matrix");
   return 0;
 }
 
-// The operator's pattern: K's extended by T's, built once per T pattern, values zero. Row by
-// row into an exactly preallocated matrix.
-PetscErrorCode sumPattern(Context &c, const Csr &k, const Csr &t) {
-  auto rowUnion = [&](PetscInt i, std::vector<PetscInt> *cols) {
-    cols->clear();
-    PetscInt a = k.p[i], ae = k.p[i + 1], b = t.p[i], be = t.p[i + 1];
-    while (a < ae || b < be) {
-      if (b >= be || (a < ae && k.j[a] < t.j[b])) cols->push_back(k.j[a++]);
-      else if (a >= ae || t.j[b] < k.j[a]) cols->push_back(t.j[b++]);
-      else { cols->push_back(k.j[a]); ++a; ++b; }
-    }
-  };
-  std::vector<PetscInt> counts(k.n), cols;
-  size_t widest = 0;
-  for (PetscInt i = 0; i < k.n; ++i) {
-    rowUnion(i, &cols);
-    counts[i] = (PetscInt)cols.size();
-    widest = std::max(widest, cols.size());
-  }
-  std::vector<PetscScalar> zeros(widest, 0.0);
-  PetscCall(MatDestroy(&c.op));
-  PetscCall(MatCreate(PETSC_COMM_SELF, &c.op));
-  PetscCall(MatSetSizes(c.op, k.n, k.n, k.n, k.n));
-  PetscCall(MatSetType(c.op, MATSEQAIJ));
-  PetscCall(MatSeqAIJSetPreallocation(c.op, 0, counts.data()));
-  for (PetscInt i = 0; i < k.n; ++i) {
-    rowUnion(i, &cols);
-    PetscCall(MatSetValues(c.op, 1, &i, (PetscInt)cols.size(), cols.data(), zeros.data(), INSERT_VALUES));
-  }
-  PetscCall(MatAssemblyBegin(c.op, MAT_FINAL_ASSEMBLY));
-  return MatAssemblyEnd(c.op, MAT_FINAL_ASSEMBLY);
-}
-
-// op's values := K's, zero where only T has an entry (each step starts from K again, in
-// place). *fits is false when an entry of K has no place in op's pattern.
-PetscErrorCode fillFromK(Mat op, const Csr &k, bool *fits) {
-  PetscInt n;
-  const PetscInt *ia, *ja;
+// Row i of the sequential AIJ matrix m: its columns and values, in place.
+struct Rows {
+  PetscInt n = 0;
+  const PetscInt *ia = nullptr, *ja = nullptr;
+  PetscScalar *a = nullptr;
+  Mat m = nullptr;
+};
+PetscErrorCode openRows(Mat m, Rows *r) {
   PetscBool done;
-  PetscCall(MatGetRowIJ(op, 0, PETSC_FALSE, PETSC_FALSE, &n, &ia, &ja, &done));
-  *fits = done && n == k.n;
-  if (*fits) {
-    PetscScalar *a;
-    PetscCall(MatSeqAIJGetArray(op, &a));
-    for (PetscInt i = 0; i < n && *fits; ++i) {
-      PetscInt p = ia[i], pe = ia[i + 1];
-      for (PetscInt q = k.p[i]; q < k.p[i + 1] && *fits; ++q) {
-        while (p < pe && ja[p] < k.j[q]) a[p++] = 0.0;
-        *fits = p < pe && ja[p] == k.j[q];
-        if (*fits) a[p++] = k.a[q];
-      }
-      while (p < pe) a[p++] = 0.0;
-    }
-    PetscCall(MatSeqAIJRestoreArray(op, &a));
+  r->m = m;
+  PetscCall(MatGetRowIJ(m, 0, PETSC_FALSE, PETSC_FALSE, &r->n, &r->ia, &r->ja, &done));
+  if (!done) {
+    lastMessage = "the matrix has no row structure to read";
+    return PETSC_ERR_SUP;
   }
-  return MatRestoreRowIJ(op, 0, PETSC_FALSE, PETSC_FALSE, &n, &ia, &ja, &done);
+  return MatSeqAIJGetArray(m, &r->a);
+}
+PetscErrorCode closeRows(Rows *r) {
+  PetscBool done;
+  PetscCall(MatSeqAIJRestoreArray(r->m, &r->a));
+  return MatRestoreRowIJ(r->m, 0, PETSC_FALSE, PETSC_FALSE, &r->n, &r->ia, &r->ja, &done);
+}
+
+// J := K again, from the values kept aside.
+PetscErrorCode restoreK(Bulk &b) {
+  if (b.clean) return 0;
+  Rows r;
+  PetscCall(openRows(b.J, &r));
+  for (size_t s = 0; s < b.sRows.size(); ++s)
+    for (PetscInt p = r.ia[b.sRows[s]], q = b.sPtr[s]; q < b.sPtr[s + 1]; ++p, ++q) r.a[p] = b.sVals[q];
+  for (size_t d = 0; d < b.dPos.size(); ++d) r.a[b.dPos[d]] = b.dVals[d];
+  PetscCall(closeRows(&r));
+  b.clean = true;
+  return 0;
+}
+
+// Keeps aside K's values (J clean) where J will differ from it: the rows marked in b.whole,
+// and the Dirichlet columns of every other row.
+PetscErrorCode captureK(Bulk &b) {
+  std::vector<char> dirichletColumn(b.n, 0);
+  for (PetscInt i : b.dirichlet) dirichletColumn[i] = 1;
+  b.sRows.clear(); b.sPtr.assign(1, 0); b.sCols.clear(); b.sVals.clear();
+  b.dPos.clear(); b.dRow.clear(); b.dCol.clear(); b.dVals.clear();
+  Rows r;
+  PetscCall(openRows(b.J, &r));
+  for (PetscInt i = 0; i < b.n; ++i) {
+    if (b.whole[i]) {
+      b.sRows.push_back(i);
+      for (PetscInt p = r.ia[i]; p < r.ia[i + 1]; ++p) { b.sCols.push_back(r.ja[p]); b.sVals.push_back(r.a[p]); }
+      b.sPtr.push_back((PetscInt)b.sCols.size());
+      continue;
+    }
+    for (PetscInt p = r.ia[i]; p < r.ia[i + 1]; ++p)
+      if (dirichletColumn[r.ja[p]]) {
+        b.dPos.push_back(p); b.dRow.push_back(i); b.dCol.push_back(r.ja[p]); b.dVals.push_back(r.a[p]);
+      }
+  }
+  PetscCall(closeRows(&r));
+  b.captured = true;
+  return 0;
+}
+
+// J (clean) with its pattern extended by t's, values K's (zero where only t has an entry).
+PetscErrorCode extendPattern(Bulk &b, Mat t) {
+  std::vector<PetscInt> counts(b.n), cols;
+  std::vector<PetscScalar> vals;
+  auto rowUnion = [&](PetscInt i) -> PetscErrorCode {
+    PetscInt nk, nt;
+    const PetscInt *ck, *ct;
+    const PetscScalar *vk;
+    cols.clear(); vals.clear();
+    PetscCall(MatGetRow(b.J, i, &nk, &ck, &vk));
+    PetscCall(MatGetRow(t, i, &nt, &ct, nullptr));
+    PetscInt a = 0, c = 0;
+    while (a < nk || c < nt) {
+      if (c >= nt || (a < nk && ck[a] < ct[c])) { cols.push_back(ck[a]); vals.push_back(vk[a]); ++a; }
+      else if (a >= nk || ct[c] < ck[a]) { cols.push_back(ct[c]); vals.push_back(0.0); ++c; }
+      else { cols.push_back(ck[a]); vals.push_back(vk[a]); ++a; ++c; }
+    }
+    PetscCall(MatRestoreRow(t, i, &nt, &ct, nullptr));
+    return MatRestoreRow(b.J, i, &nk, &ck, &vk);
+  };
+  for (PetscInt i = 0; i < b.n; ++i) {
+    PetscCall(rowUnion(i));
+    counts[i] = (PetscInt)cols.size();
+  }
+  Mat wider;
+  PetscCall(MatCreate(PETSC_COMM_SELF, &wider));
+  PetscCall(MatSetSizes(wider, b.n, b.n, b.n, b.n));
+  PetscCall(MatSetType(wider, MATSEQAIJ));
+  PetscCall(MatSeqAIJSetPreallocation(wider, 0, counts.data()));
+  for (PetscInt i = 0; i < b.n; ++i) {
+    PetscCall(rowUnion(i));
+    PetscCall(MatSetValues(wider, 1, &i, (PetscInt)cols.size(), cols.data(), vals.data(), INSERT_VALUES));
+  }
+  PetscCall(MatAssemblyBegin(wider, MAT_FINAL_ASSEMBLY));
+  PetscCall(MatAssemblyEnd(wider, MAT_FINAL_ASSEMBLY));
+  PetscCall(MatDestroy(&b.J));
+  b.J = wider;
+  b.captured = false;
+  return 0;
 }
 
 // Whether every entry of t has a place in a's pattern.
@@ -748,29 +718,133 @@ PetscErrorCode within(Mat t, Mat a, bool *inside) {
   return 0;
 }
 
-// The operator K + T with Dirichlet rows and columns as identity ones, in the one PETSc matrix
-// op: K's values written into it, then T added (T lives on Gamma_3's rows). FreeFEM never
-// forms K + T; beside op PETSc holds K itself, for the residual's K x.
-PetscErrorCode sumOperator(Context &c, const Bulk &b, Matrice_Creuse<double> *T) {
-  Csr k = bulkRows(b), tr;
-  PetscCall(morseRows(T, b.n, &tr));
+// J := K + T with the Dirichlet rows and columns identity ones. *widened: J's pattern had
+// to grow for T (a new matrix: no preconditioner of the old one may be reused).
+PetscErrorCode sumOperator(Bulk &b, Matrice_Creuse<double> *T, bool *widened) {
   Mat t;
   PetscCall(toPetsc(T, &t));
-  bool inside = false, fits = false;
-  if (c.op) PetscCall(within(t, c.op, &inside));
-  if (inside) PetscCall(fillFromK(c.op, k, &fits));
-  if (!fits) {
-    PetscCall(sumPattern(c, k, tr));
-    PetscCall(fillFromK(c.op, k, &fits));
-    if (!fits) {
-      lastMessage = "K's entries do not fit the pattern of K + T";
-      return PETSC_ERR_PLIB;
-    }
+  PetscInt n;
+  PetscCall(MatGetSize(t, &n, nullptr));
+  if (n != b.n) {
+    MatDestroy(&t);
+    lastMessage = "the contact tangent has " + std::to_string(n) + " rows where K has " + std::to_string(b.n);
+    return PETSC_ERR_ARG_SIZ;
   }
-  c.dirichlet = b.dirichlet;
-  PetscCall(MatAXPY(c.op, 1.0, t, SUBSET_NONZERO_PATTERN));
+  PetscCall(restoreK(b));
+  bool inside = false;
+  PetscCall(within(t, b.J, &inside));
+  *widened = !inside;
+  if (!inside) PetscCall(extendPattern(b, t));
+  if (b.whole.size() != (size_t)b.n) b.whole.assign(b.n, 0);
+  for (PetscInt i : b.dirichlet)
+    if (!b.whole[i]) { b.whole[i] = 1; b.captured = false; }
+  for (PetscInt i = 0; i < n; ++i) {
+    PetscInt nt;
+    PetscCall(MatGetRow(t, i, &nt, nullptr, nullptr));
+    if (nt && !b.whole[i]) { b.whole[i] = 1; b.captured = false; }
+    PetscCall(MatRestoreRow(t, i, &nt, nullptr, nullptr));
+  }
+  if (!b.captured) PetscCall(captureK(b));
+  PetscCall(MatAXPY(b.J, 1.0, t, SUBSET_NONZERO_PATTERN));
   PetscCall(MatDestroy(&t));
-  return MatZeroRowsColumns(c.op, (PetscInt)c.dirichlet.size(), c.dirichlet.data(), 1.0, nullptr, nullptr);
+  PetscCall(MatZeroRowsColumns(b.J, (PetscInt)b.dirichlet.size(), b.dirichlet.data(), 1.0, nullptr, nullptr));
+  b.clean = false;
+  return 0;
+}
+
+PetscErrorCode vectorOf(KN<double> *v, PetscInt n, Vec *out) {
+  if (v->N() != n) {
+    lastMessage = "a vector of size " + std::to_string(v->N()) + " where K has " + std::to_string(n) + " rows";
+    return PETSC_ERR_ARG_SIZ;
+  }
+  return VecCreateSeqWithArray(PETSC_COMM_SELF, 1, n, (PetscScalar *)(double *)*v, out);
+}
+
+// y = K x in every row (the Dirichlet rows are K's own): J x, corrected where J is not K.
+PetscErrorCode multiplyK(Bulk &b, KN<double> *x, KN<double> *y) {
+  Vec vx, vy;
+  PetscCall(vectorOf(x, b.n, &vx));
+  PetscCall(vectorOf(y, b.n, &vy));
+  PetscCall(MatMult(b.J, vx, vy));
+  PetscCall(VecDestroy(&vx));
+  PetscCall(VecDestroy(&vy));
+  if (b.clean) return 0;
+  for (size_t s = 0; s < b.sRows.size(); ++s) {
+    double sum = 0;
+    for (PetscInt q = b.sPtr[s]; q < b.sPtr[s + 1]; ++q) sum += b.sVals[q] * (*x)[b.sCols[q]];
+    (*y)[b.sRows[s]] = sum;
+  }
+  for (size_t d = 0; d < b.dPos.size(); ++d) (*y)[b.dRow[d]] += b.dVals[d] * (*x)[b.dCol[d]];
+  return 0;
+}
+
+long bulkMult(long const &id, KN<double> *const &x, KN<double> *const &y) {
+  Bulk *b = bulkOf(id);
+  if (!b || !b->J) return fail(PETSC_ERR_ARG_WRONGSTATE, "K x");
+  if (y->N() != b->n) y->resize(b->n);
+  TRY(multiplyK(*b, x, y), "K x");
+  return 0;
+}
+
+long bulkDiagonal(long const &id, KN<double> *const &d) {
+  Bulk *b = bulkOf(id);
+  if (!b || !b->J) return fail(PETSC_ERR_ARG_WRONGSTATE, "K's diagonal");
+  if (d->N() != b->n) d->resize(b->n);
+  TRY(restoreK(*b), "K's diagonal");
+  Vec vd;
+  TRY(vectorOf(d, b->n, &vd), "K's diagonal");
+  TRY(MatGetDiagonal(b->J, vd), "K's diagonal");
+  VecDestroy(&vd);
+  return 0;
+}
+
+// The Newton system's Dirichlet dofs (mask != 0): identity rows and columns in K + T.
+long bulkDirichlet(long const &id, KN<double> *const &mask) {
+  Bulk *b = bulkOf(id);
+  if (!b || !b->J || mask->N() != b->n) return fail(PETSC_ERR_ARG_SIZ, "Dirichlet dofs");
+  TRY(restoreK(*b), "Dirichlet dofs");
+  b->dirichlet.clear();
+  for (PetscInt i = 0; i < b->n; ++i) if ((*mask)[i] != 0) b->dirichlet.push_back(i);
+  b->captured = false;
+  return 0;
+}
+
+// K's entries, one "i j value" line each (0-based, rows sorted), under the header FreeFEM
+// writes for its own sparse matrices ("n m nnz half fortran state"), for a test that compares
+// K with FreeFEM's.
+PetscErrorCode writeK(Bulk &b, const std::string &file) {
+  PetscCall(restoreK(b));
+  std::ofstream out(file.c_str());
+  out.precision(20);
+  Rows r;
+  PetscCall(openRows(b.J, &r));
+  out << "#  the bulk matrix K held by PETSc, as FreeFEM writes a sparse matrix\n"
+      << "#    n       m        nnz     half     fortran   state\n"
+      << b.n << " " << b.n << " " << r.ia[b.n] << " 0 0 2\n";
+  for (PetscInt i = 0; i < b.n; ++i)
+    for (PetscInt p = r.ia[i]; p < r.ia[i + 1]; ++p) out << i << " " << r.ja[p] << " " << r.a[p] << "\n";
+  PetscCall(closeRows(&r));
+  if (!out) {
+    lastMessage = "cannot write " + file;
+    return PETSC_ERR_FILE_WRITE;
+  }
+  return 0;
+}
+
+long bulkWrite(long const &id, string *const &file) {
+  Bulk *b = bulkOf(id);
+  if (!b || !b->J) return fail(PETSC_ERR_ARG_WRONGSTATE, "writing K");
+  TRY(writeK(*b, *file), "writing K");
+  return 0;
+}
+
+long bulkDestroy(long const &id) {
+  Bulk *b = id >= 0 && id < (long)bulks.size() ? bulks[id] : nullptr;
+  if (!b) return 0;
+  MatDestroy(&b->J);   // a solver context still using it keeps its own reference
+  delete b;
+  bulks[id] = nullptr;
+  return 0;
 }
 
 long krylov(Context *c, KN<double> *b, KN<double> *x, double rtol, long reuse);
@@ -805,12 +879,24 @@ long solveBulk(long const &id, long const &bulk, Matrice_Creuse<double> *const &
   Context *c = context(id);
   if (!c) return fail(PETSC_ERR_ARG_OUTOFRANGE, "solve");
   Bulk *k = bulkOf(bulk);
-  if (!k || !k->K) return fail(PETSC_ERR_ARG_WRONGSTATE, "solve");
+  if (!k || !k->J) return fail(PETSC_ERR_ARG_WRONGSTATE, "solve");
   double c0 = cpu();
-  if (reuse < 2 || !c->op) TRY(sumOperator(*c, *k, T), "matrix K + T");
+  long use = reuse;
+  // A clean J holds K alone (put back for K's diagonal, say): the operator is summed again.
+  if (reuse < 2 || !c->op || k->clean) {
+    bool widened = false;
+    TRY(sumOperator(*k, T, &widened), "matrix K + T");
+    if (c->op != k->J) {
+      TRY(MatDestroy(&c->op), "matrix K + T");
+      TRY(PetscObjectReference((PetscObject)k->J), "matrix K + T");
+      c->op = k->J;
+    }
+    c->dirichlet = k->dirichlet;
+    if (widened) use = 0;
+  }
   c->cpuOperator = cpu() - c0;
   c->peakOperator = peakMb();
-  return krylov(c, b, x, rtol, reuse);
+  return krylov(c, b, x, rtol, use);
 }
 
 long krylov(Context *c, KN<double> *b, KN<double> *x, double rtol, long reuse) {
