@@ -115,13 +115,16 @@ struct Context {
 };
 std::vector<Context *> contexts;
 
-Context *context(long id) {
-  if (id < 0 || id >= (long)contexts.size() || !contexts[id]) {
-    lastMessage = "no PETSc solver context " + std::to_string(id);
+// The object a script's integer handle names, or null (and the message) when it names none.
+template <class T> T *handle(const std::vector<T *> &all, long id, const char *what) {
+  if (id < 0 || id >= (long)all.size() || !all[id]) {
+    lastMessage = std::string("no ") + what + " " + std::to_string(id);
     return nullptr;
   }
-  return contexts[id];
+  return all[id];
 }
+
+Context *context(long id) { return handle(contexts, id, "PETSc solver context"); }
 
 long fail(PetscErrorCode ierr, const std::string &where) {
   std::string text = lastMessage;
@@ -493,13 +496,7 @@ struct Bulk {
 };
 std::vector<Bulk *> bulks;
 
-Bulk *bulkOf(long id) {
-  if (id < 0 || id >= (long)bulks.size() || !bulks[id]) {
-    lastMessage = "no bulk matrix " + std::to_string(id);
-    return nullptr;
-  }
-  return bulks[id];
-}
+Bulk *bulkOf(long id) { return handle(bulks, id, "bulk matrix"); }
 
 long bulkCreate(long const &n) {
   TRY(start(), "start");
@@ -653,6 +650,8 @@ PetscErrorCode captureK(Bulk &b) {
         b.dPos.push_back(p); b.dRow.push_back(i); b.dCol.push_back(r.ja[p]); b.dVals.push_back(r.a[p]);
       }
   }
+  std::cout << "bulk: K kept aside where K + T differs: " << b.sCols.size() << " entries in " << b.sRows.size()
+            << " whole rows, " << b.dPos.size() << " in Dirichlet columns, of " << r.ia[b.n] << std::endl;
   PetscCall(closeRows(&r));
   b.captured = true;
   return 0;
