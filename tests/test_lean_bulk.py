@@ -12,11 +12,11 @@ from pathlib import Path
 import numpy as np
 import pytest
 
-from harness import freefem
-from harness.layout import Layout
-from harness.mesh import build_mesh
-from harness.run import solver_inputs
-from harness.scene import load_scene
+from harness.core import freefem
+from harness.core.layout import Layout
+from harness.mesh.mesh import build_mesh
+from harness.run.run import solver_inputs
+from harness.scene.scene import load_scene
 
 CASES = Path(__file__).parents[1] / "cases"
 

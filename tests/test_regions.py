@@ -16,8 +16,8 @@ import numpy as np
 import pytest
 
 from harness.cli import main
-from harness.contract import ExitCode
-from harness.fields import read_state
+from harness.core.contract import ExitCode
+from harness.measure.fields import read_state
 from physics_runs import CASES, DATA, solve
 
 # freefem/materials/Brass.idp (isotropic) and PZT-5H.idp: C33 and C13 [Pa].
@@ -135,13 +135,6 @@ def test_regions_on_a_rectangle_are_refused(tmp_path, capsys):
                  "--set", "scene.material=", "--set", 'scene.materials={body = "PZT-5H"}'])
     err = capsys.readouterr().err.strip().splitlines()
     assert code == 2 and len(err) == 1 and "needs a gmsh scene" in err[0], err
-
-
-def test_crosscheck_refuses_regions_in_one_line(tmp_path, capsys):
-    """The GetFEM peer takes one material file: regions would be compared with one material."""
-    code = main(["crosscheck", str(DATA / "bilayer.toml"), "--levels", "4", "--results", str(tmp_path)])
-    err = capsys.readouterr().err.strip().splitlines()
-    assert code == ExitCode.INPUT and len(err) == 1 and "solves one material" in err[0], err
 
 
 def test_a_brass_shim_takes_a_small_stated_share_of_the_potential(tmp_path):
