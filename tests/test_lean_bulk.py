@@ -15,7 +15,9 @@ import pytest
 from harness.core import freefem
 from harness.core.layout import Layout
 from harness.mesh.mesh import build_mesh
-from harness.run.run import solver_inputs
+from harness.run import petsc_plugin
+from harness.run.plan import invocation
+from harness.run.run import make_meshes
 from harness.scene.scene import load_scene
 
 CASES = Path(__file__).parents[1] / "cases"
@@ -28,10 +30,13 @@ def bulk_matrix(tmp: Path, case: str, n: int, solver: str) -> tuple[tuple[int, i
     mesh = build_mesh(scene.geometry, n, layout.meshes_dir(scene.name)).path
     work = tmp / solver
     work.mkdir()
-    text, options = solver_inputs(scene, mesh, n, layout, "zero", None, out=work)
-    (work / "main.edp").write_text(text)
+    run = invocation(scene, mesh, n, layout, "zero", None)
+    make_meshes(scene, run)
+    if scene.solver.builds_plugin:
+        petsc_plugin.library()
+    (work / "main.edp").write_text(run.script)
     dump = work / "K.txt"
-    outcome = freefem.invoke(freefem.command(work / "main.edp", [*options, "-debug.bulk_matrix", str(dump)]),
+    outcome = freefem.invoke(freefem.command(work / "main.edp", [*run.bound(work), "-debug.bulk_matrix", str(dump)]),
                              work, 300)
     assert outcome.returncode == 0, (work / "stdout.txt").read_text()[-2000:]
     rows = [line.split() for line in dump.read_text().splitlines() if not line.startswith("#")]
