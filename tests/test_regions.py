@@ -230,3 +230,92 @@ def test_a_bad_region_poling_is_named(tmp_path, capsys):
                  'scene.materials={lower = "PZT-5H", upper = {material = "PZT-5H", poling_axis = [0, 0]}}'])
     err = capsys.readouterr().err.strip().splitlines()
     assert code == 2 and len(err) == 1 and "scene.materials.upper: scene.poling_axis = [0, 0] has zero length" in err[0], err
+
+
+def layers_exact(z: np.ndarray, lower: str, upper: str, p: float = 1e6, t1: float = 0.5) -> np.ndarray:
+    """u along the load of two layers in series under the pressure p (tests/data/bilayer.toml)."""
+    return np.where(z <= t1, -p * z / C33[lower], -p * t1 / C33[lower] - p * (z - t1) / C33[upper])
+
+
+@pytest.mark.parametrize("n, lower, upper", [(4, "Brass", "PZT-5H"), (8, "PZT-5H", "Brass")])
+def test_the_rectangles_two_blocks_are_the_two_layers_drawn_in_gmsh(tmp_path, n, lower, upper):
+    """[geometry.blocks] on the rectangle (tests/data/bilayer_rect.toml) against the same two
+    layers drawn in gmsh (tests/data/bilayer.toml): both the exact P1 field, so equal node by node."""
+    materials = f'scene.materials={{lower = "{lower}", upper = "{upper}"}}'
+    rect = solve(DATA / "bilayer_rect.toml", n, tmp_path / "rect", materials)
+    drawn = solve(DATA / "bilayer.toml", n, tmp_path / "gmsh", materials)
+    u_rect = read_state(tmp_path / "rect" / "bilayer_rect" / f"n{n}" / "state.txt")[0].reshape(-1, 2)
+    u_gmsh = read_state(tmp_path / "gmsh" / "bilayer" / f"n{n}" / "state.txt")[0].reshape(-1, 2)
+    at_rect = np.column_stack([grid(rect.fields.points[:, k], n) for k in range(2)])
+    at_gmsh = np.column_stack([grid(drawn.fields.points[:, k], n) for k in range(2)])
+    exact = layers_exact(at_rect[:, 1], lower, upper)
+    scale = np.abs(exact).max()
+    # Round-off only: measured 6.8e-16 of max |u_y| (the gmsh scene's 5.6e-13) at n = 4.
+    assert u_rect[:, 1] == pytest.approx(exact, abs=1e-10 * scale)
+    assert np.abs(u_rect[:, 0]).max() <= 1e-10 * scale
+    # The same nodes (the lattice), matched by their coordinates.
+    order_rect, order_gmsh = np.lexsort(at_rect.T), np.lexsort(at_gmsh.T)
+    assert np.array_equal(at_rect[order_rect], at_gmsh[order_gmsh])
+    assert u_rect[order_rect] == pytest.approx(u_gmsh[order_gmsh], abs=1e-10 * scale)
+
+
+@pytest.mark.parametrize("n", [2, 4])
+def test_the_boxs_two_blocks_are_two_layers_in_series(tmp_path, n):
+    """[geometry.blocks] on the box (tests/data/bilayer_box.toml), the known answer of
+    tests/data/bilayer3d.toml on the Kuhn tetrahedra: u_z piecewise linear, exact in P1."""
+    run = solve(DATA / "bilayer_box.toml", n, tmp_path)
+    u = read_state(tmp_path / "bilayer_box" / f"n{n}" / "state.txt")[0].reshape(-1, 3)
+    exact = layers_exact(grid(run.fields.points[:, 2], n), "Brass", "PZT-5H")
+    # Round-off only: measured 1.9e-15 of max |u_z| at n = 4.
+    assert u[:, 2] == pytest.approx(exact, abs=1e-10 * np.abs(exact).max())
+    assert np.abs(u[:, :2]).max() <= 1e-10 * np.abs(exact).max()
+
+
+def test_a_rectangle_without_blocks_meshes_as_before(tmp_path):
+    """The mesh files of scenes without blocks are the bytes they were: the region labels and
+    names are written only when a scene maps blocks (the regions' label 1, 'lower', replaces
+    the body's label 1, 'body')."""
+    from harness.mesh.mesh import build_mesh
+    from harness.scene.scene import load_scene
+    plain = load_scene(DATA / "bilayer_rect.toml", ["scene.materials={}", 'scene.material="Brass"'])
+    layered = load_scene(DATA / "bilayer_rect.toml")
+    a = build_mesh(plain.geometry, 4, tmp_path / "plain").path.read_text()
+    b = build_mesh(layered.geometry, 4, tmp_path / "layered").path.read_text()
+    assert '2 1 "body"' in a and '2 1 "lower"' in b and '2 2 "upper"' in b
+    # Only the triangles' physical tags differ: 1 below y = 1/2, 2 above (tests/test_mesh.py
+    # holds the plain writer to gmsh's own bytes).
+    lines_a, lines_b = a.splitlines(), b.splitlines()
+    triangles = [(x, y) for x, y in zip(lines_a[lines_a.index("$Elements"):], lines_b[lines_b.index("$Elements"):])
+                 if x.split()[1:2] == ["2"]]
+    assert triangles and all(x.split()[3] == "1" for x, _ in triangles)
+    assert {y.split()[3] for _, y in triangles} == {"1", "2"}
+
+
+BAD_BLOCKS = {
+    "overlap": ("upper = [0.0, 2.0, 0.5, 1.0]", "upper = [0.0, 2.0, 0.25, 1.0]", "'lower' and 'upper' overlap"),
+    "gap": ("upper = [0.0, 2.0, 0.5, 1.0]", "upper = [0.0, 2.0, 0.75, 1.0]", "do not cover the body"),
+    "outside": ("upper = [0.0, 2.0, 0.5, 1.0]", "upper = [0.0, 2.0, 0.5, 1.5]", "must be [x0, x1, y0, y1]"),
+    "no material": ('upper = "PZT-5H"\n', "", "geometry.blocks.upper has no material"),
+    "no block": ('upper = "PZT-5H"\n', 'upper = "PZT-5H"\nmiddle = "Brass"\n', "no block named 'middle'"),
+    "unstructured": ('diagonals = "SW-NE"', 'diagonals = "unstructured"', "need the structured lattice"),
+}
+
+
+@pytest.mark.parametrize("name", BAD_BLOCKS)
+def test_bad_blocks_are_one_line_before_anything_runs(tmp_path, capsys, name):
+    old, new, message = BAD_BLOCKS[name]
+    text = (DATA / "bilayer_rect.toml").read_text()
+    assert old in text
+    (tmp_path / "case.toml").write_text(text.replace(old, new, 1))
+    code = main(["solve", str(tmp_path / "case.toml"), "--n", "4", "--results", str(tmp_path / "results")])
+    err = capsys.readouterr().err.strip().splitlines()
+    assert code == ExitCode.INPUT == 2
+    assert len(err) == 1 and err[0].startswith("error:") and message in err[0], err
+    assert not (tmp_path / "results").exists()
+
+
+def test_a_block_off_the_levels_grid_is_named(tmp_path, capsys):
+    # The interface y = 1/2 is a grid line at even n only: at n = 3 cells would straddle it.
+    code = main(["solve", str(DATA / "bilayer_rect.toml"), "--n", "3", "--results", str(tmp_path)])
+    err = capsys.readouterr().err.strip().splitlines()
+    assert code == ExitCode.INPUT and len(err) == 1 and "block 'lower' has a side at 0.5, not a multiple of h = 1/3" in err[0], err

@@ -35,6 +35,8 @@ class BoxMesh:
     tetrahedra: np.ndarray  # (M, 4), positively oriented
     triangles: np.ndarray  # (B, 3), outward oriented
     labels: np.ndarray  # (B,) role label per boundary triangle
+    # (M,) material region label per tetrahedron (harness/scene/blocks.py); none: BODY_LABEL
+    regions: np.ndarray | None = None
 
 
 def grid_counts(lengths: tuple[float, float, float], n: int) -> tuple[int, int, int]:
@@ -110,7 +112,7 @@ def boundary_faces(
 
 def write_msh(mesh: BoxMesh, path: Path) -> None:
     """MSH 2.2 (the only gmsh version FreeFEM reads), physical tags = labels."""
-    body = np.full(len(mesh.tetrahedra), BODY_LABEL)
+    body = np.full(len(mesh.tetrahedra), BODY_LABEL) if mesh.regions is None else mesh.regions
     cells = [("triangle", mesh.triangles), ("tetra", mesh.tetrahedra)]
     data = {"gmsh:physical": [mesh.labels, body], "gmsh:geometrical": [mesh.labels, body]}
     import meshio  # here, not at start-up: its import (95 ms, its CLI pulls in rich) would delay FreeFEM's start (freefem.launch warms it)

@@ -1,19 +1,20 @@
 """Material regions: `[scene.materials]` maps each named physical group of a gmsh scene's body
-(surfaces in 2D, volumes in 3D) to a material; `scene.material` stays the one-region shorthand.
+(surfaces in 2D, volumes in 3D), or each named block of the rectangle or the box
+(harness/scene/blocks.py), to a material; `scene.material` stays the one-region shorthand.
 
 The regions are perfectly bonded: u, phi and theta are one continuous P1 field over the whole
 body, and only the constants of the law change from cell to cell. Each region's constants are
 asked of FreeFEM (harness/scene/material_constants.py: the file checked and, for a rotated poling,
 rotated by freefem/material.idp) and handed to the run as piecewise-constant (P0) fields,
-one per constant, keyed by the cells' region labels (harness/mesh/gmsh_mesh.py writes label i + 1
-on the cells of the i-th region). freefem/regions.idp defines them; the law reads them
-through material.idp's `mat(...)`.
+one per constant, keyed by the cells' region labels (harness/mesh/gmsh_mesh.py, mesh.py and
+box_mesh.py write label i + 1 on the cells of the i-th region). freefem/regions.idp defines
+them; the law reads them through material.idp's `mat(...)`.
 """
 
 from __future__ import annotations
 
 from dataclasses import dataclass
-from typing import Any
+from typing import Any, Callable
 
 from harness.core.errors import SceneError
 from harness.scene.gmsh_geometry import GmshGeometry
@@ -55,29 +56,13 @@ def check_regions(materials: Any, material: str, geometry: Any) -> tuple[str, ..
         raise SceneError(f"scene.material = {material!r} and [scene.materials] both given: the first is the "
                          "shorthand for one region; name every region's material in [scene.materials] instead")
     if not isinstance(geometry, GmshGeometry):
-        raise SceneError("[scene.materials] needs a gmsh scene (geometry.kind = \"gmsh\") whose body has named "
-                         "physical groups; the rectangle and the box have one region")
+        return check_block_regions(materials, geometry)
     kind = "surface" if geometry.dimension == 2 else "volume"
     bodies = dict(geometry.bodies)
-    for name, value in materials.items():
-        if isinstance(value, dict):
-            unknown = [k for k in value if k not in ENTRY_KEYS]
-            if unknown or "material" not in value:
-                raise SceneError(f"scene.materials.{name} = {value!r}: a region's table has a material and may have "
-                                 f"a poling_axis ({'unknown key ' + repr(unknown[0]) if unknown else 'no material'})")
-            try:
-                parse_poling(value.get("poling_axis", ""), geometry.dimension)
-            except SceneError as exc:
-                raise SceneError(f"scene.materials.{name}: {exc}") from None
-            value = value["material"]
-        if not isinstance(value, str) or safe_name(value):
-            raise SceneError(f"scene.materials.{name} = {value!r} must be a material name (letters, digits, - _ .)")
-        if name not in bodies:
-            raise SceneError(f"scene.materials.{name}: {geometry.file.name} has no physical {kind} named {name!r} "
-                             f"(its named {kind}s: {', '.join(bodies) or 'none'})")
-    for name in bodies:
-        if name not in materials:
-            raise SceneError(f"{geometry.file.name}: physical {kind} {name!r} has no material in [scene.materials]")
+    match_names(materials, tuple(bodies), geometry.dimension,
+                lambda name: f"scene.materials.{name}: {geometry.file.name} has no physical {kind} named {name!r} "
+                             f"(its named {kind}s: {', '.join(bodies) or 'none'})",
+                lambda name: f"{geometry.file.name}: physical {kind} {name!r} has no material in [scene.materials]")
     owner: dict[int, str] = {}
     for name, entities in geometry.bodies:
         for entity in entities:
@@ -89,6 +74,49 @@ def check_regions(materials: Any, material: str, geometry: Any) -> tuple[str, ..
         raise SceneError(f"{geometry.file.name}: {kind} {geometry.unnamed_bodies[0]} is in no physical {kind}, so "
                          "it has no material: add it to a named region")
     return tuple(materials)
+
+
+def check_block_regions(materials: dict[str, Any], geometry: Any) -> tuple[str, ...]:
+    """The rectangle's or box's regions, its [geometry.blocks] (harness/scene/blocks.py has
+    checked that they tile the body without overlapping)."""
+    blocks = [block.name for block in getattr(geometry, "blocks", ())]
+    if not blocks:
+        raise SceneError("[scene.materials] needs a gmsh scene (geometry.kind = \"gmsh\") whose body has named "
+                         "physical groups, or [geometry.blocks] naming the rectangle's or box's sub-blocks")
+    match_names(materials, tuple(blocks), geometry.dimension,
+                lambda name: f"scene.materials.{name}: geometry.blocks has no block named {name!r} "
+                             f"(its blocks: {', '.join(blocks)})",
+                lambda name: f"geometry.blocks.{name} has no material in [scene.materials]")
+    return tuple(materials)
+
+
+def match_names(materials: dict[str, Any], names: tuple[str, ...], dimension: int,
+                no_part: Callable[[str], str], no_material: Callable[[str], str]) -> None:
+    """Every entry valid and naming a part of the body, every part named: else the first
+    culprit, in the words `no_part(name)` or `no_material(name)` give."""
+    for name in materials:
+        check_entry(name, materials[name], dimension)
+        if name not in names:
+            raise SceneError(no_part(name))
+    for name in names:
+        if name not in materials:
+            raise SceneError(no_material(name))
+
+
+def check_entry(name: str, value: Any, dimension: int) -> None:
+    """One entry of [scene.materials]: a material name, or a table with a material and a poling_axis."""
+    if isinstance(value, dict):
+        unknown = [k for k in value if k not in ENTRY_KEYS]
+        if unknown or "material" not in value:
+            raise SceneError(f"scene.materials.{name} = {value!r}: a region's table has a material and may have "
+                             f"a poling_axis ({'unknown key ' + repr(unknown[0]) if unknown else 'no material'})")
+        try:
+            parse_poling(value.get("poling_axis", ""), dimension)
+        except SceneError as exc:
+            raise SceneError(f"scene.materials.{name}: {exc}") from None
+        value = value["material"]
+    if not isinstance(value, str) or safe_name(value):
+        raise SceneError(f"scene.materials.{name} = {value!r} must be a material name (letters, digits, - _ .)")
 
 
 def any_rotated(regions: tuple[Region, ...]) -> bool:

@@ -228,6 +228,10 @@ def load_scene(path: Path, overrides: Iterable[str] = ()) -> Scene:
 
 def parse_any_geometry(table: dict[str, dict[str, Any]], case_dir: Path) -> Geometry | Box | GmshGeometry:
     given = table["geometry"]
+    if given.get("blocks") == {}:
+        # A body without named sub-blocks resolves to the table it had before blocks existed:
+        # its summary.json and run cache keys stay what they were.
+        del given["blocks"]
     if given["kind"] == "box":
         return parse_box(given)
     if given["kind"] == "gmsh":
