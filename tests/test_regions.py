@@ -319,3 +319,71 @@ def test_a_block_off_the_levels_grid_is_named(tmp_path, capsys):
     code = main(["solve", str(DATA / "bilayer_rect.toml"), "--n", "3", "--results", str(tmp_path)])
     err = capsys.readouterr().err.strip().splitlines()
     assert code == ExitCode.INPUT and len(err) == 1 and "block 'lower' has a side at 0.5, not a multiple of h = 1/3" in err[0], err
+
+
+# PZT-5H's beta33 [C/(V m)] (freefem/materials/PZT-5H.idp).
+BETA33 = 1.301565607e-8
+ROLLERS = 'geometry.roles={bottom = "clamped", sides = "roller_x", top = "electrode"}'
+
+
+@pytest.mark.parametrize("n", [4, 8])
+def test_a_brass_shim_tied_to_the_ground_is_an_equipotential(tmp_path, n):
+    """tests/data/shim.toml with rollers on the sides (one-dimensional) and the shim a conductor
+    tied to the ground: phi = 0 in the whole shim, and the PZT-5H layer above carries the whole
+    drive, phi = V (y - t1) / t2, free along y: u_y = -e33 V (y - t1) / (C33 t2) there, 0 in the
+    shim (sigma_yy = 0 throughout). P1-exact: round-off only (measured 7e-17 of V, 1.3e-15 of
+    u_y at n = 4). The dielectric shim of the same scene holds 1.73 % of V at its top instead."""
+    run = solve(DATA / "shim.toml", n, tmp_path, ROLLERS,
+                'scene.materials={lower = {material = "Brass", conductor = "ground"}, upper = "PZT-5H"}')
+    u, phi = read_state(tmp_path / "shim" / f"n{n}" / "state.txt")[:2]
+    y = grid(run.fields.points[:, 1], n)
+    V, t1, t2 = 100.0, 0.5, 0.5
+    # Dirichlet dofs, penalised by 1e30 (freefem/bulk.idp): the ground's 0 to ~1e-91 V.
+    assert np.abs(phi[y <= t1]).max() <= 1e-20 * V
+    assert phi == pytest.approx(np.where(y <= t1, 0.0, V * (y - t1) / t2), abs=1e-10 * V)
+    strain = -E33 * V / (t2 * C33["PZT-5H"])
+    exact = np.where(y <= t1, 0.0, strain * (y - t1))
+    u = u.reshape(-1, 2)
+    assert u[:, 1] == pytest.approx(exact, abs=1e-10 * np.abs(exact).max())
+    assert np.abs(u[:, 0]).max() <= 1e-10 * np.abs(exact).max()
+    # The electrode's charge: the layer's capacitance, free along the poling (width 2).
+    charge = (BETA33 + E33**2 / C33["PZT-5H"]) * V * 2.0 / t2
+    assert run.record.checks["electrode_charge"] == pytest.approx(charge, rel=1e-10)
+
+
+def test_a_shim_tied_to_the_electrode_carries_the_electrodes_charge(tmp_path):
+    """The shim tied to the electrode (100 V), the top earthed, rollers below and on the sides:
+    the PZT-5H layer between them sees phi = V (1 - y) / t2, and the electrode's free charge, read
+    over the shim's dofs too, is the layer's (beta33 + e33^2 / C33) V w / t2, to round-off."""
+    run = solve(DATA / "shim.toml", 4, tmp_path,
+                'geometry.roles={bottom = "roller_y", sides = "roller_x", top = "ground"}',
+                'scene.materials={lower = {material = "Brass", conductor = "electrode"}, upper = "PZT-5H"}')
+    _, phi = read_state(tmp_path / "shim" / "n4" / "state.txt")[:2]
+    y = grid(run.fields.points[:, 1], 4)
+    V, t1, t2 = 100.0, 0.5, 0.5
+    assert phi == pytest.approx(np.where(y <= t1, V, V * (1.0 - y) / t2), abs=1e-10 * V)
+    charge = (BETA33 + E33**2 / C33["PZT-5H"]) * V * 2.0 / t2
+    assert run.record.checks["electrode_charge"] == pytest.approx(charge, rel=1e-10)
+
+
+@pytest.mark.parametrize("materials, message", [
+    ('{lower = {material = "Brass", conductor = "floating"}, upper = "PZT-5H"}',
+     "scene.materials.lower.conductor = 'floating': a conductor region is tied to the potential of one of the roles"),
+    ('{lower = {material = "Brass", conductor = "electrode"}, upper = "PZT-5H"}',
+     "node(s) of a conductor region would hold two potentials"),
+])
+def test_a_conductor_region_that_cannot_be_one_is_refused_in_one_line(tmp_path, capsys, materials, message):
+    # The second: the shim tied to the electrode is clamped and earthed below (phi = 0 and V at one node).
+    code = main(["solve", str(DATA / "shim.toml"), "--n", "4", "--results", str(tmp_path),
+                 "--set", f"scene.materials={materials}"])
+    err = capsys.readouterr().err.strip().splitlines()
+    assert code == ExitCode.INPUT and len(err) == 1 and message in err[0], err
+
+
+def test_a_conductor_region_without_the_potential_is_refused_in_one_line(tmp_path, capsys):
+    code = main(["solve", str(DATA / "bilayer_rect.toml"), "--n", "4", "--results", str(tmp_path), "--set",
+                 'scene.materials={lower = {material = "Brass", conductor = "ground"}, upper = "PZT-5H"}'])
+    err = capsys.readouterr().err.strip().splitlines()
+    assert code == ExitCode.INPUT and len(err) == 1, err
+    assert "scene.materials.lower.conductor = 'ground' needs the effect 'piezoelectric'" in err[0], err
+    assert not (tmp_path / "bilayer_rect").exists()

@@ -35,14 +35,22 @@ def check_floating(table: dict[str, dict[str, Any]], geometry: Any) -> None:
             raise SceneError(f"loads.{key} = {charge!r}: no boundary part has the role {role!r}")
     if not roles:
         return
+    check_own_potential(table, f"geometry: the role {roles[0]!r}", "its charge is a load of its own",
+                        "a floating electrode")
+
+
+def check_own_potential(table: dict[str, dict[str, Any]], where: str, why_not_manufactured: str, what: str) -> None:
+    """What a part whose potential the scheme itself sets (a floating electrode's elimination, a
+    conductor region's Dirichlet dofs) needs: the potential, no manufactured phi, and one rank's
+    direct solve (both are written for one rank's matrices)."""
     if "piezoelectric" not in table["scene"]["effects"]:
-        raise SceneError(f"geometry: the role {roles[0]!r} needs the effect 'piezoelectric' (the electric potential)")
+        raise SceneError(f"{where} needs the effect 'piezoelectric' (the electric potential)")
     if any(str(v).strip() for v in table.get("manufactured", {}).values()):
-        raise SceneError(f"geometry: the role {roles[0]!r} has no manufactured solution (its charge is a load of its own)")
+        raise SceneError(f"{where} has no manufactured solution ({why_not_manufactured})")
     run = table["run"]
     if run["linear_solver"] == "petsc" or run["ranks"] > 1:
-        raise SceneError(f"run.linear_solver = {run['linear_solver']!r}, run.ranks = {run['ranks']}: a floating "
-                         "electrode is solved on one rank with a direct solver (mumps, umfpack, umfpack64)")
+        raise SceneError(f"run.linear_solver = {run['linear_solver']!r}, run.ranks = {run['ranks']}: {what} "
+                         "is solved on one rank with a direct solver (mumps, umfpack, umfpack64)")
 
 
 def floating_macros(geometry: Any) -> dict[str, str]:

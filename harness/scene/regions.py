@@ -17,20 +17,25 @@ from dataclasses import dataclass
 from typing import Any, Callable
 
 from harness.core.errors import SceneError
+from harness.scene.floating import check_own_potential
 from harness.scene.gmsh_geometry import GmshGeometry
 from harness.core.layout import Layout
 from harness.scene.material_constants import CONSTANTS, CONSTANTS_3D, ROTATED, material_constants
 from harness.scene.poling import Poling, parse_poling
 from harness.scene.schema import safe_name
 
-ENTRY_KEYS = ("material", "poling_axis")
+ENTRY_KEYS = ("material", "poling_axis", "conductor")
+# A conductor region is an equipotential at the potential of a role's parts: phi = 0 with the
+# ground (and the clamped parts), phi = loads.electrode_potential with the electrode.
+CONDUCTOR_ROLES = ("ground", "electrode")
 
 
 @dataclass(frozen=True)
 class Region:
-    name: str       # the physical group of the .geo file
+    name: str       # the physical group of the .geo file, or the block
     material: str
     poling: Poling  # its own poling_axis, or the scene's
+    conductor: str = ""  # a role of CONDUCTOR_ROLES: the region is an equipotential at its potential
 
 
 def regions_of(materials: dict[str, Any], names: tuple[str, ...], scene_poling: Any, dimension: int) -> tuple[Region, ...]:
@@ -40,7 +45,8 @@ def regions_of(materials: dict[str, Any], names: tuple[str, ...], scene_poling: 
         entry = materials[name]
         material = entry if isinstance(entry, str) else entry["material"]
         axis = entry.get("poling_axis", scene_poling) if isinstance(entry, dict) else scene_poling
-        out.append(Region(name, material, parse_poling(axis, dimension)))
+        conductor = entry.get("conductor", "") if isinstance(entry, dict) else ""
+        out.append(Region(name, material, parse_poling(axis, dimension), conductor))
     return tuple(out)
 
 
@@ -109,7 +115,11 @@ def check_entry(name: str, value: Any, dimension: int) -> None:
         unknown = [k for k in value if k not in ENTRY_KEYS]
         if unknown or "material" not in value:
             raise SceneError(f"scene.materials.{name} = {value!r}: a region's table has a material and may have "
-                             f"a poling_axis ({'unknown key ' + repr(unknown[0]) if unknown else 'no material'})")
+                             f"a poling_axis and a conductor "
+                             f"({'unknown key ' + repr(unknown[0]) if unknown else 'no material'})")
+        if value.get("conductor", "") not in CONDUCTOR_ROLES + ("",):
+            raise SceneError(f"scene.materials.{name}.conductor = {value['conductor']!r}: a conductor region is tied "
+                             f"to the potential of one of the roles {', '.join(CONDUCTOR_ROLES)}")
         try:
             parse_poling(value.get("poling_axis", ""), dimension)
         except SceneError as exc:
@@ -117,6 +127,28 @@ def check_entry(name: str, value: Any, dimension: int) -> None:
         value = value["material"]
     if not isinstance(value, str) or safe_name(value):
         raise SceneError(f"scene.materials.{name} = {value!r} must be a material name (letters, digits, - _ .)")
+
+
+def check_conductors(table: dict[str, dict[str, Any]], regions: tuple[Region, ...]) -> None:
+    """A conductor region needs the potential, fixes it by Dirichlet values on one rank's
+    direct solve, and has no manufactured data of its own."""
+    tied = [r for r in regions if r.conductor]
+    if not tied:
+        return
+    check_own_potential(table, f"scene.materials.{tied[0].name}.conductor = {tied[0].conductor!r}",
+                        "its phi is given everywhere", "a conductor region")
+
+
+def conductor_definitions(regions: tuple[Region, ...]) -> list[str]:
+    """The switch CONDUCTORS and the P0 fields of the cells tied to each role's potential
+    (freefem/regions.idp makes them Dirichlet nodes of phi); none without conductor regions."""
+    if not any(r.conductor for r in regions):
+        return []
+    fields = []
+    for role in CONDUCTOR_ROLES:
+        terms = " + ".join(f"(region == {i + 1})" for i, r in enumerate(regions) if r.conductor == role) or "0."
+        fields.append(f"RegionSpace rgTied{role.capitalize()} = {terms};")
+    return ["macro CONDUCTORS 1 //", f"macro conductorFields {' '.join(fields)} //"]
 
 
 def any_rotated(regions: tuple[Region, ...]) -> bool:
@@ -136,4 +168,4 @@ def region_definitions(regions: tuple[Region, ...], layout: Layout, dimension: i
         # One term per region; a cell's own term is its value, the others 0 * value = 0.
         terms = " + ".join(f"(region == {i + 1}) * {value[name]!r}" for i, value in enumerate(values))
         fields.append(f"RegionSpace rg{name} = {terms};")
-    return ["macro REGIONS 1 //", f"macro regionConstants {' '.join(fields)} //"]
+    return ["macro REGIONS 1 //", f"macro regionConstants {' '.join(fields)} //", *conductor_definitions(regions)]
