@@ -367,8 +367,11 @@ def test_a_shim_tied_to_the_electrode_carries_the_electrodes_charge(tmp_path):
 
 
 @pytest.mark.parametrize("materials, message", [
+    ('{lower = {material = "Brass", conductor = "free"}, upper = "PZT-5H"}',
+     "scene.materials.lower.conductor = 'free': a conductor region is tied to the potential of one of the roles"),
+    # Tied to the floating electrode while clamped and earthed below: freefem/floating.idp's line.
     ('{lower = {material = "Brass", conductor = "floating"}, upper = "PZT-5H"}',
-     "scene.materials.lower.conductor = 'floating': a conductor region is tied to the potential of one of the roles"),
+     "node(s) of a floating electrode also belong to a part of fixed potential"),
     ('{lower = {material = "Brass", conductor = "electrode"}, upper = "PZT-5H"}',
      "node(s) of a conductor region would hold two potentials"),
 ])
@@ -387,3 +390,24 @@ def test_a_conductor_region_without_the_potential_is_refused_in_one_line(tmp_pat
     assert code == ExitCode.INPUT and len(err) == 1, err
     assert "scene.materials.lower.conductor = 'ground' needs the effect 'piezoelectric'" in err[0], err
     assert not (tmp_path / "bilayer_rect").exists()
+
+
+@pytest.mark.parametrize("n", [4, 8])
+def test_a_floating_conductor_shim_sits_at_half_the_drive(tmp_path, n):
+    """tests/data/floating_shim.toml: the shim tied to the floating electrode (its dofs eliminated
+    with the electrode's, freefem/floating.idp) is one unknown potential, V/2 by the symmetry of
+    the series, with zero net charge; phi and u are the exact P1 fields (round-off only)."""
+    run = solve(DATA / "floating_shim.toml", n, tmp_path)
+    u, phi = read_state(tmp_path / "floating_shim" / f"n{n}" / "state.txt")[:2]
+    y = grid(run.fields.points[:, 1], n)
+    V, t = 100.0, 0.25
+    exact = np.where(y <= t, V / 2 * y / t, np.where(y < 1 - t, V / 2, V / 2 + V / 2 * (y - 1 + t) / t))
+    assert phi == pytest.approx(exact, abs=1e-10 * V)
+    checks = run.record.checks
+    assert checks["floating_potential"] == pytest.approx([V / 2], abs=1e-10 * V)
+    assert abs(checks["floating_charge"][0]) <= 1e-12 * checks["floating_charge_reading"][0]
+    strain = -E33 * (V / 2) / (t * C33["PZT-5H"])
+    uy = np.where(y <= t, strain * y, np.where(y < 1 - t, strain * t, strain * t + strain * (y - 1 + t)))
+    u = u.reshape(-1, 2)
+    assert u[:, 1] == pytest.approx(uy, abs=1e-10 * np.abs(uy).max())
+    assert checks["electrode_charge"] == pytest.approx((BETA33 + E33**2 / C33["PZT-5H"]) * (V / 2) * 2.0 / t, rel=1e-10)

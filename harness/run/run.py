@@ -264,7 +264,7 @@ def solver_inputs(
     The coarser meshes the options name (a multigrid's levels, a coarse space) are made only
     with `make_meshes`: the cache key needs their names alone."""
     macros = {**manufactured_macros(scene, layout), **scene.reference_macros(), **scene.poling_macros(),
-              **floating_macros(scene.geometry)}
+              **floating_macros(scene.geometry, scene.sections.scene.materials)}
     parallel = launcher.ranks_of(scene).parallel and not sequential
     petsc = scene.linear_solver == "petsc"
     definitions = region_definitions(scene.regions, layout, scene.dimension) if scene.regions else []

@@ -16,6 +16,7 @@ from __future__ import annotations
 from dataclasses import dataclass
 from typing import Any, Callable
 
+from harness.core.contract import FLOATING_ROLES
 from harness.core.errors import SceneError
 from harness.scene.floating import check_own_potential
 from harness.scene.gmsh_geometry import GmshGeometry
@@ -26,8 +27,10 @@ from harness.scene.schema import safe_name
 
 ENTRY_KEYS = ("material", "poling_axis", "conductor")
 # A conductor region is an equipotential at the potential of a role's parts: phi = 0 with the
-# ground (and the clamped parts), phi = loads.electrode_potential with the electrode.
-CONDUCTOR_ROLES = ("ground", "electrode")
+# ground (and the clamped parts), phi = loads.electrode_potential with the electrode; with a
+# floating role, the unknown uniform potential of that floating electrode (freefem/floating.idp),
+# whose given charge is then the conductor's and its boundary part's together.
+CONDUCTOR_ROLES = ("ground", "electrode", *FLOATING_ROLES)
 
 
 @dataclass(frozen=True)
@@ -145,9 +148,13 @@ def conductor_definitions(regions: tuple[Region, ...]) -> list[str]:
     if not any(r.conductor for r in regions):
         return []
     fields = []
-    for role in CONDUCTOR_ROLES:
+    for role in ("ground", "electrode"):
         terms = " + ".join(f"(region == {i + 1})" for i, r in enumerate(regions) if r.conductor == role) or "0."
         fields.append(f"RegionSpace rgTied{role.capitalize()} = {terms};")
+    # A floating conductor's cells carry 1 + the index of its electrode (its slot in floating.idp).
+    terms = " + ".join(f"(region == {i + 1}) * {FLOATING_ROLES.index(r.conductor) + 1}."
+                       for i, r in enumerate(regions) if r.conductor in FLOATING_ROLES) or "0."
+    fields.append(f"RegionSpace rgTiedFloating = {terms};")
     return ["macro CONDUCTORS 1 //", f"macro conductorFields {' '.join(fields)} //"]
 
 
