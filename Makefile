@@ -153,6 +153,15 @@ bench: $(STAMP) freefem getfem
 	$(PY) -m harness crosscheck cases/paper.toml --levels 64 --repeat 5 --out results/bench/getfem/2d
 	$(PY) -m harness crosscheck cases/paper3d.toml --levels 8 --repeat 5 --out results/bench/getfem/3d
 
+# The mesh of a 3D level made and written (the Kuhn box at h = 1/32, the disc on its pad split
+# from gmsh's tetrahedra at h = 1/8: generator, checks, MSH file), five times, medians, into
+# results/bench/mesh/<case>/ (bench.csv, bench.md). Like make bench it first waits for a quiet
+# machine (BENCH_MESH_FLAGS="--max-load 100" does not).
+.PHONY: bench-mesh
+bench-mesh: $(STAMP)
+	$(PY) -m harness bench cases/paper3d.toml --only mesh --levels 32 --results results/bench/mesh/paper3d $(BENCH_MESH_FLAGS)
+	$(PY) -m harness bench cases/disc_pad.toml --only mesh --levels 8 --results results/bench/mesh/disc_pad $(BENCH_MESH_FLAGS)
+
 # The solver table alone (issue 20): MUMPS_seq, UMFPACK64, PETSc field split + AMG, PETSc MUMPS
 # with and without BLR, PETSc geometric multigrid, on the paper scene at h = 1/64 and its 3D block at h = 1/16 (medians of
 # 3), into results/solvers/. Larger points: SOLVERS_FLAGS="--points paper:256,paper3d:32".

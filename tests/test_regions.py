@@ -266,15 +266,15 @@ def test_the_boxs_two_blocks_are_two_layers_in_series(tmp_path, n):
 
 def test_a_rectangle_without_blocks_meshes_as_before(tmp_path):
     """The mesh files of scenes without blocks are the bytes they were: the region labels and
-    names are written only when a scene maps blocks (the regions' label 1, 'lower', replaces
-    the body's label 1, 'body')."""
+    names are written only when a scene maps blocks (the regions' label 1, 'region_1', replaces
+    the body's label 1, 'body': harness/mesh/msh.py)."""
     from harness.mesh.mesh import build_mesh
     from harness.scene.scene import load_scene
     plain = load_scene(DATA / "bilayer_rect.toml", ["scene.materials={}", 'scene.material="Brass"'])
     layered = load_scene(DATA / "bilayer_rect.toml")
     a = build_mesh(plain.geometry, 4, tmp_path / "plain").path.read_text()
     b = build_mesh(layered.geometry, 4, tmp_path / "layered").path.read_text()
-    assert '2 1 "body"' in a and '2 1 "lower"' in b and '2 2 "upper"' in b
+    assert '2 1 "body"' in a and '2 1 "region_1"' in b and '2 2 "region_2"' in b
     # Only the triangles' physical tags differ: 1 below y = 1/2, 2 above (tests/test_mesh.py
     # holds the plain writer to gmsh's own bytes).
     lines_a, lines_b = a.splitlines(), b.splitlines()

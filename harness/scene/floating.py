@@ -8,6 +8,7 @@ from typing import Any
 
 from harness.core.contract import FLOATING_CHARGES, FLOATING_ROLES
 from harness.core.errors import SceneError
+from harness.scene.linear_solvers import accepting, solver
 
 
 def roles_of(geometry: Any) -> set[str]:
@@ -55,9 +56,9 @@ def check_own_potential(table: dict[str, dict[str, Any]], where: str, why_not_ma
     if any(str(v).strip() for v in table.get("manufactured", {}).values()):
         raise SceneError(f"{where} has no manufactured solution ({why_not_manufactured})")
     run = table["run"]
-    if run["linear_solver"] == "petsc" or run["ranks"] > 1:
+    if not solver(run["linear_solver"]).floating or run["ranks"] > 1:
         raise SceneError(f"run.linear_solver = {run['linear_solver']!r}, run.ranks = {run['ranks']}: {what} "
-                         "is solved on one rank with a direct solver (mumps, umfpack, umfpack64)")
+                         f"is solved on one rank with a direct solver ({accepting('floating')})")
 
 
 def floating_macros(geometry: Any, materials: Any = None) -> dict[str, str]:

@@ -11,7 +11,7 @@ from harness.scene.blocks import Block, parse_blocks
 from harness.scene.cell_size import Body
 from harness.scene.electrodes import Part
 from harness.core.errors import SceneError
-from harness.scene.schema import ROLE_LABELS
+from harness.core.contract import ROLE_LABELS
 
 
 @dataclass(frozen=True)
