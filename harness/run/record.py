@@ -55,6 +55,8 @@ class RunRecord:
     reason: str | None = None
     newton_iterations: int | None = None
     restarted_at: int | None = None  # Newton restarted from the pressed state after it (0: never)
+    failure_hint: str | None = None  # why Newton failed, when it can tell (freefem/newton.idp); empty otherwise
+    moved_onto_foundation_at: int | None = None  # the free first step from zero replaced by Gamma_3 on the foundation (0: never)
     residuals: dict[str, list[float]] | None = None
     increments: dict[str, list[float]] | None = None
     error_estimates: dict[str, list[float]] | None = None

@@ -228,6 +228,8 @@ def collect(
     if outcome.returncode != 0:
         # A distributed solve that failed wrote its reason into parallel.json, not run.json.
         solved_by = record.reason if record else (launcher.read_json(work / "parallel.json") or {}).get("reason")
+        if record and record.failure_hint:
+            solved_by = f"{solved_by}: {record.failure_hint}"
         detail = solved_by or freefem.error_detail(read_logs(work))
         reason = freefem.failure_reason(outcome, scene.timeout_s, str(detail), started_pressed(scene, guess))
         raise RunError(f"{where}: {reason} (see {log})", freefem.failure_of(outcome))
