@@ -132,7 +132,7 @@ def invocation(scene: Scene, mesh: Path, n: int, layout: Layout, guess: str, sta
     run). On several ranks (run.ranks > 1) the text is the distributed scheme's, unless
     `sequential`."""
     macros = {**manufactured_macros(scene, layout), **scene.reference_macros(), **scene.poling_macros(),
-              **floating_macros(scene.geometry)}
+              **floating_macros(scene.geometry, scene.sections.scene.materials)}
     parallel = launcher.ranks_of(scene).parallel and not sequential
     solver = scene.solver
     definitions = region_definitions(scene.regions, layout, scene.dimension) if scene.regions else []

@@ -29,6 +29,8 @@ CHECK_KEYS = frozenset({
     "max_charge_flux_contact", "max_charge_flux_open", "max_charge_flux_open_expected",
     # the size of the terms each reading sums (the checks' floors, harness/measure/checks.py)
     "force_reading", "traction_reading", "heat_reading", "heat_flux_reading", "charge_reading", "charge_flux_reading",
+    # the size of what the contact flux is formed from, int_Gamma_3 p_r(s) (|theta| + |theta_f|), the same of phi
+    "heat_contact_reading", "charge_contact_reading",
     # a floating electrode's potential, its charge read from the residual, the given one, and the
     # size of the terms that reading sums (freefem/floating.idp; only when the scene has one)
     "floating_potential", "floating_charge", "floating_charge_given", "floating_charge_reading",

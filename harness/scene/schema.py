@@ -159,8 +159,9 @@ SCHEMA: dict[str, dict[str, Key]] = {
         "description": Key(str, ""),
         # One material for the whole body, or blank with [scene.materials] (harness/scene/regions.py).
         "material": Key(str, "", check=lambda v: material_reference(v) if v else None),
-        # [scene.materials]: a gmsh scene's named body groups (surfaces in 2D, volumes in 3D)
-        # = material, one entry per group; the scene.material shorthand left blank.
+        # [scene.materials]: a gmsh scene's named body groups (surfaces in 2D, volumes in 3D),
+        # or the rectangle's or box's [geometry.blocks], = material, one entry per group; the
+        # scene.material shorthand left blank.
         "materials": Key(object, {}),
         "effects": Key(list, list(EFFECTS), effect_list),
         # zero | pressed: Newton's start on every level; coarser: each level starts from
@@ -185,6 +186,9 @@ SCHEMA: dict[str, dict[str, Key]] = {
         # "unstructured": gmsh's Frontal-Delaunay triangles of size h with the interior
         # nodes shifted at random by up to 0.3 h (a distorted, non-nested mesh; harness/mesh/rectangle_mesh.py).
         "diagonals": Key(str, "SW-NE", one_of("SW-NE", "NW-SE", "unstructured")),
+        # [geometry.blocks]: named sub-blocks name = [x0, x1, y0, y1] that tile the body, the
+        # regions [scene.materials] maps to materials (harness/scene/blocks.py).
+        "blocks": Key(object, {}),
     },
     "loads": {
         name: Key(float, 0.0)
@@ -299,6 +303,8 @@ BOX_GEOMETRY: dict[str, Key] = {
     **{name: Key(object) for name in ("x0", "x1", "y0", "y1", "z0", "z1")},
     # kuhn: nested structured tetrahedra (harness/mesh/box_mesh.py); unstructured: gmsh's, not nested.
     "diagonals": Key(str, "kuhn", one_of("kuhn", "unstructured")),
+    # [geometry.blocks]: named sub-blocks name = [x0, x1, y0, y1, z0, z1] (harness/scene/blocks.py).
+    "blocks": Key(object, {}),
 }
 
 
