@@ -327,7 +327,7 @@ def post_pass_command(work: Path, scene: Scene, mesh: Path, n: int, layout: Layo
     start = WarmStart(mesh, work / "parallel_state.txt")
     text, options = solver_inputs(scene, mesh, n, layout, "file", start, out=work, sequential=True)
     script.write_text(text)
-    return freefem.command(script, launcher.without_newton_steps(options))
+    return freefem.command(script, launcher.post_pass_options(options, work))
 
 
 def collect(
@@ -340,8 +340,8 @@ def collect(
     log = log_file(work, layout.failed_dir(scene.name, n))
     record = read_run_json(work)
     if outcome.returncode != 0:
-        # A distributed solve that failed wrote its reason into parallel.json, not run.json.
-        solved_by = record.reason if record else (launcher.read_json(work / "parallel.json") or {}).get("reason")
+        # (A distributed solve that failed wrote its run.json on the ranks.)
+        solved_by = record.reason if record else None
         detail = solved_by or freefem.error_detail(read_logs(work))
         reason = freefem.failure_reason(outcome, scene.timeout_s, str(detail), started_pressed(scene, guess))
         raise RunError(f"{where}: {reason} (see {log})", freefem.failure_of(outcome))
