@@ -1,7 +1,8 @@
 """One level on several MPI ranks (run.ranks > 1): the launcher command, its environment,
 and the sequential pass that reads the checks and outputs of the gathered state.
 
-The distributed Newton solve is freefem/parallel.idp under FreeFem++-mpi, started by
+The distributed Newton solve is freefem/scheme.idp with its N-rank backend (freefem/ranks.idp)
+under FreeFem++-mpi, started by
 `run.launcher` (default `ff-mpirun -np {ranks}`; on a cluster e.g.
 `srun -n {ranks} FreeFem++-mpi`). It writes parallel_state.txt (the state on the global
 mesh) and ranks_record.txt (the Newton run, per-rank memory, Krylov solver, wall split). Then
@@ -30,7 +31,6 @@ from harness.unknowns import Unknowns
 
 MPI_PLUGIN_PATH = "/usr/lib/freefem++/mpi"  # plugins built against MPI (the others abort in FreeFem++-mpi)
 IDP_PATH = "/usr/include/freefem++/idp"  # macro_ddm.idp, from Debian's libfreefem++-dev
-PARALLEL_SCHEME = "parallel.idp"
 # Launchers that pass the arguments after the script through a shell's `eval`, so a path
 # with a space or a quote would be split or mangled there: Debian's ff-mpirun builds the
 # mpiexec command as a string and runs `eval "${a[*]}"`. Each argument is quoted for it;

@@ -267,8 +267,7 @@ def solver_inputs(
     text = main_script(scene.material, scene.effects, layout, element=scene.element, macros=macros,
                        definitions=definitions,
                        linear_solver=scene.linear_solver, petsc_plugin=petsc_plugin.library() if petsc else None,
-                       scheme=layout.freefem / launcher.PARALLEL_SCHEME if parallel else None,
-                       dimension=scene.dimension)
+                       ranks=parallel, dimension=scene.dimension)
     options = ["-mesh", str(mesh.resolve()), "-out", str(out.resolve() if out else "-"), "-n", str(n)]
     options += freefem.scene_options(scene.solver_parameters(), guess)
     if petsc:

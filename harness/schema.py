@@ -259,7 +259,7 @@ SCHEMA: dict[str, dict[str, Key]] = {
         # from n = 16 to 128 (docs/solvers.md). The harness meshes them (harness/mesh.py).
         "multigrid_levels": Key(int, 4, nonnegative),
         "multigrid_coarsest": Key(int, 8, positive),
-        # MPI ranks of one solve (freefem/parallel.idp, harness/launcher.py); 1: the sequential scheme.
+        # MPI ranks of one solve (freefem/ranks.idp, harness/launcher.py); 1: the sequential scheme.
         "ranks": Key(int, 1, positive),
         # How ranks are started; {ranks} is replaced. On a SLURM cluster: "srun -n {ranks} FreeFem++-mpi".
         "launcher": Key(str, "ff-mpirun -np {ranks}"),

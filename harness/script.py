@@ -32,10 +32,14 @@ def main_script(
     scheme: Path | None = None,
     petsc_plugin: Path | None = None,
     definitions: Sequence[str] = (),
+    ranks: bool = False,
 ) -> str:
     """`petsc_plugin`: the built plugin (harness/petsc_plugin.py), for linear_solver "petsc";
-    `definitions`: FreeFEM lines written as they are after the macros (material regions)."""
+    `definitions`: FreeFEM lines written as they are after the macros (material regions);
+    `ranks`: the scheme's N-rank backend (freefem/ranks.idp, run.ranks > 1, FreeFem++-mpi)."""
     lines = ["// Written by the harness (harness/script.py); edit the scene, not this file."]
+    if ranks:
+        lines.append("macro PARALLELSCHEME 1 //")
     plugin, name = LINEAR_SOLVERS[linear_solver]
     if linear_solver == "petsc":
         if petsc_plugin is None:

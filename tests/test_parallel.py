@@ -1,4 +1,4 @@
-"""One level on two MPI ranks (freefem/parallel.idp, harness/launcher.py) against one rank:
+"""One level on two MPI ranks (freefem/scheme.idp with ranks.idp, harness/launcher.py) against one rank:
 the same solution to within the Newton tolerance, Gamma_3 cut by the decomposition, the
 parallel figures in run.json; and the launcher's pieces without MPI."""
 
