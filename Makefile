@@ -90,7 +90,7 @@ paper-figures: $(STAMP) freefem getfem
 $(VENV_STAMP): pyproject.toml
 	bash scripts/make-venv.sh $(PYTHON) $(VENV)
 
-$(STAMP): $(VENV_STAMP) $(wildcard harness/*.py harness/studies/*.py)
+$(STAMP): $(VENV_STAMP) $(wildcard harness/*.py harness/*/*.py)
 	$(PY) -m compileall -q harness
 	touch $@
 
@@ -98,6 +98,11 @@ $(STAMP): $(VENV_STAMP) $(wildcard harness/*.py harness/studies/*.py)
 # CSV/JSON/PNG baseline.
 clean-runs:
 	find results -mindepth 2 -maxdepth 3 -type d \( -name 'n[0-9]*' -o -name meshes -o -name '.tmp-*' -o -name '.old-*' \) -exec rm -rf {} +
+
+# docs/modules.md, generated from the code's layers and docstrings (a test fails when stale).
+.PHONY: modules-doc
+modules-doc: $(STAMP)
+	$(PY) scripts/modules_doc.py
 
 # Adaptive refinement driven by the error estimate (docs/adaptivity.md): the paper's scene and
 # the strip actuator, each against its uniform levels, into results/adapt/<case>/.

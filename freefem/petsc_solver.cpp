@@ -1,6 +1,6 @@
 // A FreeFEM plugin of this project: PETSc's Krylov solvers and preconditioners for a
 // FreeFEM sparse matrix (run.linear_solver = "petsc", freefem/linear_solver.idp).
-// Built on first use by harness/petsc_plugin.py against Debian's PETSc (3.18).
+// Built on first use by harness/run/petsc_plugin.py against Debian's PETSc (3.18).
 //
 // Debian's FreeFEM has no PETSc interface of its own (its upstream one needs HPDDM), so
 // this one is deliberately small. A script creates a solver context from an options

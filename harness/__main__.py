@@ -1,3 +1,5 @@
+"""`python -m harness`: the signal handlers first, before the heavy imports, then the command line."""
+
 import signal
 import sys
 
@@ -10,7 +12,7 @@ if __name__ == "__main__":
 
 import gc  # noqa: E402
 
-from harness.signals import install  # noqa: E402
+from harness.core.signals import install  # noqa: E402
 
 install()
 try:

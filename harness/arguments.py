@@ -7,9 +7,9 @@ import os
 from pathlib import Path
 from typing import Any, Callable, NoReturn
 
-from harness.contract import ExitCode
-from harness.errors import SceneError
-from harness.layout import REPO, Layout, results_root
+from harness.core.contract import ExitCode
+from harness.core.errors import SceneError
+from harness.core.layout import REPO, Layout, results_root
 
 
 class Parser(argparse.ArgumentParser):
@@ -92,7 +92,7 @@ def add_results(parser: argparse.ArgumentParser, under: str = "") -> None:
 
 
 def add_memory_override(parser: argparse.ArgumentParser) -> None:
-    from harness.guards import OVERRIDE_FLAG
+    from harness.core.guards import OVERRIDE_FLAG
 
     parser.add_argument(OVERRIDE_FLAG, dest="ignore_memory", action="store_true",
                         help="run a level even when its estimated memory exceeds what is available")
@@ -100,8 +100,8 @@ def add_memory_override(parser: argparse.ArgumentParser) -> None:
 
 def add_cluster(parser: argparse.ArgumentParser) -> None:
     """--scheduler / --cluster, for a study whose independent pieces can run on a cluster
-    (harness/executor.py's `cluster`), each checked as the command line is read."""
-    from harness.executor import parse_cluster, scheduler_address
+    (harness/study/executor.py's `cluster`), each checked as the command line is read."""
+    from harness.study.executor import parse_cluster, scheduler_address
 
     parser.add_argument("--scheduler", metavar="tcp://HOST:PORT", type=checked_by(scheduler_address),
                         help="run the study's chains on this Dask scheduler (workers share the results path)")

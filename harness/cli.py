@@ -12,10 +12,10 @@ import importlib
 import sys
 from typing import Sequence
 
-from harness import freefem
+from harness.core import freefem
 from harness.arguments import Parser
-from harness.contract import ExitCode
-from harness.faults import guarded, report
+from harness.core.contract import ExitCode
+from harness.core.faults import guarded, report
 
 # Subcommand -> its one-line help (the module's own docstring says the rest), grouped by the
 # task each serves (the top-level help lists them so).

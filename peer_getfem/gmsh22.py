@@ -2,7 +2,7 @@
 boundary label.
 
 The harness writes triangles (2D) or tetrahedra (3D) for the body and, for the boundary,
-segments (2D) or triangles (3D) whose first tag is the role label of harness/contract.py.
+segments (2D) or triangles (3D) whose first tag is the role label of harness/core/contract.py.
 GetFEM regions take those labels as their numbers, so a region is a role."""
 
 from __future__ import annotations

@@ -2,7 +2,7 @@
 
     /usr/bin/python3 peer_getfem/peer.py PROBLEM.json OUTPUT.json
 
-PROBLEM.json (written by harness/peer.py) names the level's mesh (the MSH 2.2 file the
+PROBLEM.json (written by harness/run/peer.py) names the level's mesh (the MSH 2.2 file the
 harness made for FreeFEM), the role labels, the scene's effects and data, the material's
 full 3D tensors and the start ("zero" or "pressed"). OUTPUT.json holds the nodal fields in
 SI units, the Newton history, the contact integrals, the time of each phase and the peak

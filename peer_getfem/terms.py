@@ -24,7 +24,7 @@ import numpy as np
 PLANE_VOIGT = [0, 2, 4]
 PLANE_AXES = [0, 2]
 
-# Role labels (harness/contract.py ROLE_LABELS), the GetFEM region numbers.
+# Role labels (harness/core/contract.py ROLE_LABELS), the GetFEM region numbers.
 CLAMPED, LOADED, FREE, CONTACT = "clamped", "loaded", "free", "contact"
 
 

@@ -7,7 +7,7 @@
 # freefem/ranks.idp); FreeFem++-mpi, ff-mpirun and OpenMPI come with freefem++.
 # libpetsc-real3.18-dev (PETSc 3.18 with hypre, MUMPS, ML; mpicxx comes with it) is what the
 # project's PETSc plugin is built against on first use (run.linear_solver = "petsc",
-# harness/petsc_plugin.py).
+# harness/run/petsc_plugin.py).
 set -euo pipefail
 have_openblas() { ls /usr/lib/*/openblas-pthread/libblas.so.3 >/dev/null 2>&1; }
 DDM=/usr/include/freefem++/idp/macro_ddm.idp

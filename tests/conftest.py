@@ -6,7 +6,7 @@ from pathlib import Path
 
 import pytest
 
-from harness.layout import Layout
+from harness.core.layout import Layout
 
 DATA = Path(__file__).parent / "data"
 

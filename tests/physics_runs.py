@@ -6,8 +6,8 @@ from dataclasses import dataclass
 from pathlib import Path
 
 from harness.cli import main
-from harness.fields import Fields, read_fields
-from harness.record import RunRecord, read_run_json
+from harness.measure.fields import Fields, read_fields
+from harness.run.record import RunRecord, read_run_json
 
 DATA = Path(__file__).parent / "data"
 CASES = Path(__file__).parents[1] / "cases"

@@ -10,10 +10,10 @@ from pathlib import Path
 import numpy as np
 import pytest
 
-from harness.box import parse_box
-from harness.box_mesh import grid_index, kuhn_box, kuhn_weights
-from harness.errors import SceneError
-from harness.norms import seminorm, simplex_seminorm
+from harness.scene.box import parse_box
+from harness.mesh.box_mesh import grid_index, kuhn_box, kuhn_weights
+from harness.core.errors import SceneError
+from harness.measure.norms import seminorm, simplex_seminorm
 from physics_runs import CASES, DATA, solve
 
 S = 8.5  # Tresca bound of the friction tests [N/m^2]
@@ -174,7 +174,7 @@ def test_bad_box_faces_are_named(face, text):
 def test_a_coupling_outside_class_6mm_is_refused_in_3d_only(tmp_path, dimension, error):
     """C14 couples the out-of-plane strains: plane strain never sees it (2D accepts the
     material), the 3D law would drop it silently (3D refuses it, one error line)."""
-    from harness.freefem import command, invoke
+    from harness.core.freefem import command, invoke
     from test_materials import FREEFEM, variant
 
     material = variant(tmp_path, "C14", ("[[166e9, 77e9, 78e9, 0, 0, 0]", "[[166e9, 77e9, 78e9, 1e9, 0, 0]"),
@@ -203,9 +203,9 @@ def test_manufactured_contact3d_converges_at_the_p1_rates_on_every_branch(tmp_pa
     its L2 error at order ~2. Bands: H1 0.9-1.15, L2 above 1.6 (measured 0.96-1.02 and
     1.75-1.99 over 1/2 -> 1/4; u's L2 is the most pre-asymptotic there and reaches 1.85 over
     1/4 -> 1/8). The exact state visits open and closed, stick and slip nodes on Gamma_3."""
-    from harness.layout import Layout
-    from harness.scene import load_scene
-    from harness.verification import mms_errors
+    from harness.core.layout import Layout
+    from harness.scene.scene import load_scene
+    from harness.study.verification import mms_errors
 
     layout = Layout(results=tmp_path / "results")
     scene = load_scene(CASES / "mms" / "contact3d.toml")
@@ -225,9 +225,9 @@ def test_manufactured_case_on_a_turned_gmsh_box_converges_at_the_p1_rates_from_i
     tetrahedra split from h = 1/2) at h = 1/2, 1/4: measured H1 orders 1.00-1.01 and L2
     1.86-1.97 with the shortest-diagonal split; gmsh's own split (a fixed diagonal) gave
     H1 0.81 and L2 1.52 here. Bands as contact3d's above, the L2 floor raised to 1.8."""
-    from harness.layout import Layout
-    from harness.scene import load_scene
-    from harness.verification import mms_errors
+    from harness.core.layout import Layout
+    from harness.scene.scene import load_scene
+    from harness.study.verification import mms_errors
 
     scene = load_scene(CASES / "mms" / "tilted3d.toml")
     errors = mms_errors(scene, (2, 4), Layout(results=tmp_path / "results"), jobs=1, progress=lambda line: None)

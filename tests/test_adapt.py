@@ -1,4 +1,4 @@
-"""The adaptive loop (harness/adapt.py, `python -m harness adapt`): it refines where the
+"""The adaptive loop (harness/study/adapt.py, `python -m harness adapt`): it refines where the
 paper's scene is singular, its meshes are nested, its errors fall faster in N than the
 uniform levels' where those are held back by Γ3's ends, a smooth manufactured solution keeps
 the optimal rate, the 3D loop runs on the paper's block, and bad input is refused."""
@@ -12,10 +12,10 @@ import numpy as np
 import pandas as pd
 import pytest
 
-from harness.adapt import adapt
+from harness.study.adapt import adapt
 from harness.cli import main
-from harness.layout import REPO, Layout
-from harness.scene import load_scene
+from harness.core.layout import REPO, Layout
+from harness.scene.scene import load_scene
 
 PAPER = REPO / "cases" / "paper.toml"
 

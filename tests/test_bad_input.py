@@ -18,7 +18,7 @@ def solve(tmp: Path, *extra: str) -> int:
 def test_newton_non_convergence_is_reported_and_keeps_the_good_run(tmp_path, capsys):
     assert solve(tmp_path) == 0
     good = (tmp_path / "paper" / "n4" / "run.json").read_text()
-    capsys.readouterr()  # the good run's own lines (the paper's Tresca warning, harness/tresca.py)
+    capsys.readouterr()  # the good run's own lines (the paper's Tresca warning, harness/run/tresca.py)
     assert solve(tmp_path, "--set", "newton.max_iterations=2", "--force") != 0
     err = capsys.readouterr().err.strip().splitlines()
     assert len(err) == 1 and "maximum number of iterations" in err[0]
@@ -38,7 +38,7 @@ def test_freefem_script_error_is_reported_with_its_reason(tmp_path, capsys):
 
 def test_missing_mesh_is_a_clear_solver_failure(tmp_path):
     """The solver run by hand on a mesh that does not exist fails with a readable reason."""
-    from harness.freefem import command, error_detail, failure_reason, invoke
+    from harness.core.freefem import command, error_detail, failure_reason, invoke
 
     out = tmp_path / "run"
     out.mkdir()

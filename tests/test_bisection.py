@@ -1,4 +1,4 @@
-"""Newest-vertex bisection (harness/bisection.py): conforming, nested, area- and
+"""Newest-vertex bisection (harness/mesh/bisection.py): conforming, nested, area- and
 role-preserving, shape-regular however often it refines; Dörfler's marking."""
 
 from __future__ import annotations
@@ -6,7 +6,7 @@ from __future__ import annotations
 import numpy as np
 import pytest
 
-from harness.bisection import dorfler, oriented, refine, start, uniform
+from harness.mesh.bisection import dorfler, oriented, refine, start, uniform
 
 
 def square(n: int = 4):

@@ -1,14 +1,14 @@
-"""The 3D box meshes (harness/box_mesh.py): oriented, nested, labelled, and read by FreeFEM."""
+"""The 3D box meshes (harness/mesh/box_mesh.py): oriented, nested, labelled, and read by FreeFEM."""
 
 import subprocess
 
 import numpy as np
 import pytest
 
-from harness.box_mesh import kuhn_box, signed_volumes, write_msh
-from harness.contract import ROLE_LABELS
-from harness.errors import MeshError
-from harness.freefem import command, environment
+from harness.mesh.box_mesh import kuhn_box, signed_volumes, write_msh
+from harness.core.contract import ROLE_LABELS
+from harness.core.errors import MeshError
+from harness.core.freefem import command, environment
 
 BOX = (4.0, 1.0, 1.0)
 
@@ -89,7 +89,7 @@ def test_freefem_reads_the_mesh_with_its_volume_and_face_labels(tmp_path):
 
 
 def test_an_unstructured_box_mesh_is_reproducible_exact_on_its_patches_and_not_the_lattice(tmp_path):
-    """geometry.diagonals = "unstructured" for a box (harness/mesh.py unstructured_box): gmsh's
+    """geometry.diagonals = "unstructured" for a box (harness/mesh/mesh.py unstructured_box): gmsh's
     tetrahedra on the box cut at every patch edge. Each role's triangles cover its patches'
     area exactly (checked inside build_mesh), every volume is positive, and the same bytes
     come out on every call."""
@@ -97,8 +97,8 @@ def test_an_unstructured_box_mesh_is_reproducible_exact_on_its_patches_and_not_t
 
     import meshio
 
-    from harness.mesh import build_mesh
-    from harness.scene import load_scene
+    from harness.mesh.mesh import build_mesh
+    from harness.scene.scene import load_scene
 
     box = load_scene(Path(__file__).parents[1] / "cases" / "hard" / "unstructured3d.toml").geometry
     first, again = build_mesh(box, 4, tmp_path / "a"), build_mesh(box, 4, tmp_path / "b")

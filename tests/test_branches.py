@@ -8,9 +8,9 @@ import json
 
 import pytest
 
-from harness import branch_starts as branches
-from harness.layout import REPO, Layout
-from harness.scene import load_scene
+from harness.report import branch_starts as branches
+from harness.core.layout import REPO, Layout
+from harness.scene.scene import load_scene
 
 
 @pytest.fixture(scope="module")

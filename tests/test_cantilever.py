@@ -3,7 +3,7 @@ cantilever at 50 V whose free end presses on an earthed stop with Coulomb fricti
 
 - it converges at a coarse level with every physical check passing and no warning;
 - an open gap (a legitimate outcome) passes every check with exit 0: the checks' scales have
-  a round-off floor (harness/checks.py floor), where they divided round-off by round-off
+  a round-off floor (harness/measure/checks.py floor), where they divided round-off by round-off
   (`FAIL sigma_nu ... open_flux ... charge_flux_open_error 1`);
 - Coulomb's bound is zero at an open node: |sigma_tau| of ~1e-8 N/m^2 read there is round-off,
   not friction beyond the bound;
@@ -18,10 +18,10 @@ import math
 
 import pytest
 
-from harness.checks import physical_checks
+from harness.measure.checks import physical_checks
 from harness.cli import main
-from harness.record import RunRecord
-from harness.scene import load_scene
+from harness.run.record import RunRecord
+from harness.scene.scene import load_scene
 from physics_runs import CASES
 
 CANTILEVER = CASES / "cantilever.toml"
@@ -108,8 +108,8 @@ def test_the_floor_still_fails_what_round_off_cannot_explain(checks, flag):
 
 
 def test_a_failing_check_names_what_to_try(tmp_path):
-    from harness.run import RunResult
-    from harness.run_checks import check_run
+    from harness.run.run import RunResult
+    from harness.measure.run_checks import check_run
 
     failing = record(max_sigma_nu=1e-2)
     checked = check_run(load_scene(CANTILEVER), RunResult(8, tmp_path, failing, reused=True))
@@ -130,7 +130,7 @@ def test_a_study_records_the_tresca_warning_of_each_level_in_its_summary(capsys,
 
 def test_the_device_picture_of_a_scene_without_heat(capsys, tmp_path):
     """The cantilever has no theta: the picture shows phi and |u| (it failed: no field 'theta')."""
-    from harness.device_plot import render
+    from harness.report.device_plot import render
 
     solve(capsys, tmp_path, 2)
     render(tmp_path / "cantilever" / "n2", tmp_path / "fields.png")

@@ -12,7 +12,7 @@ import numpy as np
 import pandas as pd
 import pytest
 
-from harness.cell_size import Body, cells_through, h_max
+from harness.scene.cell_size import Body, cells_through, h_max
 from harness.cli import main
 
 STUB = Path(__file__).parent / "data" / "stub_freefem"
@@ -76,8 +76,8 @@ def test_solve_warns_of_a_level_with_one_cell_through_the_thickness(capsys, tmp_
 def test_a_gmsh_part_drawn_in_pieces_is_one_part():
     """The cantilever is three surfaces of one physical surface: its thinnest section is the
     20 x 1 mm part's 1 mm, not the 0.5 mm width of its margin piece."""
-    from harness.layout import REPO
-    from harness.scene import load_scene
+    from harness.core.layout import REPO
+    from harness.scene.scene import load_scene
 
     [part] = load_scene(REPO / "cases" / "cantilever.toml").geometry.body_parts()
     assert part.name == "cantilever.geo: physical surface 'PZT-5H'"

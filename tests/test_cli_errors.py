@@ -1,5 +1,5 @@
 """The command line: every expected failure is one `error:` line and its exit code (2 bad
-input, 3 a failed run, 4 the environment, 1 a slope outside the band: harness/faults.py),
+input, 3 a failed run, 4 the environment, 1 a slope outside the band: harness/core/faults.py),
 and a failed run or study leaves earlier results untouched.
 FreeFEM itself runs, on the stand-in solver of tests/data/stub_freefem."""
 
@@ -12,9 +12,9 @@ from pathlib import Path
 
 import pytest
 
-from harness import freefem
+from harness.core import freefem
 from harness.cli import main
-from harness.record import read_run_json
+from harness.run.record import read_run_json
 
 
 def run(capsys, layout, *argv: str) -> tuple[int, list[str], str]:
@@ -112,7 +112,7 @@ def test_an_empty_cluster_is_refused_too(capsys, tmp_path):
 
 @pytest.mark.parametrize("address", ["tcp://127.0.0.1:8786", "tls://scheduler.example:8786", "tcp://[::1]:8786"])
 def test_a_scheduler_address_with_scheme_host_and_port_is_taken(address):
-    from harness.executor import scheduler_address
+    from harness.study.executor import scheduler_address
 
     assert scheduler_address(address) == address
 

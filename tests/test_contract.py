@@ -1,11 +1,11 @@
-"""The integers shared by Python and FreeFEM come from one table (harness/contract.py)."""
+"""The integers shared by Python and FreeFEM come from one table (harness/core/contract.py)."""
 
-from harness.contract import ExitCode, Failure, ROLE_LABELS, contract_idp, contract_path
-from harness.freefem import EXIT_REASONS
+from harness.core.contract import ExitCode, Failure, ROLE_LABELS, contract_idp, contract_path
+from harness.core.freefem import EXIT_REASONS
 
 
 def test_committed_contract_idp_is_generated_from_the_table():
-    # Regenerate with `python -m harness.contract` after editing harness/contract.py.
+    # Regenerate with `python -m harness.core.contract` after editing harness/core/contract.py.
     assert contract_path().read_text() == contract_idp()
 
 

@@ -1,6 +1,6 @@
 """The cost-accuracy frontier (issue 5): fits and their inversion with known answers, the
 errors FreeFEM measures against a reference (freefem/reference_error.idp) checked against
-harness/norms.py, a coarse P2 run against P1, and a whole small cost study."""
+harness/measure/norms.py, a coarse P2 run against P1, and a whole small cost study."""
 
 from __future__ import annotations
 
@@ -12,7 +12,7 @@ import numpy as np
 import pandas as pd
 import pytest
 
-from harness.frontier import (
+from harness.report.frontier import (
     Fits,
     add_chain_costs,
     cheapest,
@@ -22,13 +22,13 @@ from harness.frontier import (
     run_cost,
     write_outputs,
 )
-from harness.fields import read_fields
-from harness.layout import Layout
-from harness.mesh import build_mesh
-from harness.norms import error_norms
-from harness.scene import load_scene
-from harness.engine import run_levels, runs_of
-from harness.rates import PowerLaw, power_fit
+from harness.measure.fields import read_fields
+from harness.core.layout import Layout
+from harness.mesh.mesh import build_mesh
+from harness.measure.norms import error_norms
+from harness.scene.scene import load_scene
+from harness.study.engine import run_levels, runs_of
+from harness.measure.rates import PowerLaw, power_fit
 
 CASE = Path(__file__).parents[1] / "cases" / "paper.toml"
 H = np.array([1 / 4, 1 / 8, 1 / 16, 1 / 32, 1 / 64])
@@ -132,7 +132,7 @@ def reference_options(meshes, runs, n: int, element: str) -> list[str]:
 
 def test_freefem_reference_errors_of_p1_agree_with_the_harness_norms(tmp_path):
     """P1 against a P1 reference: the norms FreeFEM integrates on the reference mesh are
-    the ones harness/norms.py computes from the two VTU files."""
+    the ones harness/measure/norms.py computes from the two VTU files."""
     meshes, ref = chain(tmp_path, (2, 4, 8), "scene.name=ref")
     _, runs = chain(tmp_path, (2, 4), "scene.name=p1", *reference_options(meshes, ref, 8, "P1"))
     fine = read_fields(ref[8].solution)
@@ -184,7 +184,7 @@ def test_a_small_cost_study_writes_its_table_plots_and_frontier(tmp_path):
 
 
 def test_graded_coordinate_fixes_the_breakpoints_and_packs_towards_the_focus():
-    from harness.mesh import graded_coordinate
+    from harness.mesh.mesh import graded_coordinate
     t = np.linspace(0.0, 4.0, 65)
     g = graded_coordinate(t, [1.0, 3.0], 2.0)
     assert np.all(np.diff(g) > 0)  # increasing: triangles keep their orientation

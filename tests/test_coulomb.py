@@ -15,9 +15,9 @@ import numpy as np
 import pytest
 
 from harness.cli import main
-from harness.scene import load_scene
-from harness.errors import SceneError
-from harness.record import read_run_json
+from harness.scene.scene import load_scene
+from harness.core.errors import SceneError
+from harness.run.record import read_run_json
 from physics_runs import CASES, DATA, solve
 
 REPO = Path(__file__).parents[1]

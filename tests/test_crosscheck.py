@@ -16,12 +16,12 @@ import pandas as pd
 import pytest
 
 from harness import cli
-from harness.contract import ExitCode, ROLE_LABELS
-from harness.layout import REPO
-from harness.mesh import build_mesh, mesh_path
-from harness.materials import values as material_values
-from harness.peer import RUNNER, SYSTEM_PYTHON, problem, run_peer
-from harness.scene import load_scene
+from harness.core.contract import ExitCode, ROLE_LABELS
+from harness.core.layout import REPO
+from harness.mesh.mesh import build_mesh, mesh_path
+from harness.scene.materials import values as material_values
+from harness.run.peer import RUNNER, SYSTEM_PYTHON, problem, run_peer
+from harness.scene.scene import load_scene
 
 CASES = REPO / "cases"
 DATA = Path(__file__).parent / "data"
@@ -92,7 +92,7 @@ def test_a_bad_problem_path_gives_one_error_line_and_exit_code_2(tmp_path):
 
 
 def test_a_missing_getfem_names_the_package_with_its_own_exit_code(tmp_path, monkeypatch, capsys):
-    monkeypatch.setattr("harness.peer.SYSTEM_PYTHON", str(tmp_path / "no-python"))
+    monkeypatch.setattr("harness.run.peer.SYSTEM_PYTHON", str(tmp_path / "no-python"))
     code = cli.main(["crosscheck", str(CASES / "paper.toml"), "--levels", "2", "--results", str(tmp_path)])
     assert code == ExitCode.NO_PEER == 5
     err = capsys.readouterr().err

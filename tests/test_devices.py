@@ -22,7 +22,7 @@ import numpy as np
 import pytest
 
 from harness.cli import main
-from harness.contract import ExitCode
+from harness.core.contract import ExitCode
 from physics_runs import CASES, solve
 
 # PZT-5H (freefem/materials/PZT-5H.idp).
@@ -131,7 +131,7 @@ def test_the_force_sensor_is_linear_in_its_force(tmp_path):
 def test_the_sensor_picture_shows_the_top_face_displacement(tmp_path):
     """Both faces of the sensor hold one potential each (earthed base, floating electrode): the
     face panel shows what varies there, u_z on the top face, not round-off of phi."""
-    from harness.device_plot import face_panel, render
+    from harness.report.device_plot import face_panel, render
 
     run = solve(CASES / "force_sensor.toml", 2, tmp_path)
     title, label, nodes, shown = face_panel(run.fields, "phi", "V")

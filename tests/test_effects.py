@@ -12,11 +12,11 @@ import numpy as np
 import pytest
 
 from harness.cli import main
-from harness.record import RunRecord, read_run_json
-from harness.errors import SceneError
-from harness.fields import read_fields
-from harness.layout import REPO
-from harness.scene import load_scene
+from harness.run.record import RunRecord, read_run_json
+from harness.core.errors import SceneError
+from harness.measure.fields import read_fields
+from harness.core.layout import REPO
+from harness.scene.scene import load_scene
 
 CASES = REPO / "cases"
 FULL = ["piezoelectric", "thermal", "pyroelectric", "contact", "friction", "electric_contact", "thermal_contact"]
@@ -155,7 +155,7 @@ def test_the_command_line_switches_effects(tmp_path, capsys):
 def valid_combinations() -> list[tuple[str, ...]]:
     from itertools import combinations
 
-    from harness.schema import EFFECTS, effect_list
+    from harness.scene.schema import EFFECTS, effect_list
 
     names = list(EFFECTS)
     return [c for k in range(len(names) + 1) for c in combinations(names, k) if effect_list(list(c)) is None]
@@ -167,10 +167,10 @@ def test_every_valid_combination_of_effects_compiles_and_solves(tmp_path, case, 
     FreeFEM program that compiles and runs, in 2D and in 3D (the same pieces, freefem/
     dimension.idp). From the pressed start every one of them converges (2D at h = 1/2, 3D at
     h = 1, 24 tetrahedra); a failure names its combination."""
-    from harness.errors import RunError
-    from harness.layout import Layout
-    from harness.mesh import build_mesh
-    from harness.run import run_level
+    from harness.core.errors import RunError
+    from harness.core.layout import Layout
+    from harness.mesh.mesh import build_mesh
+    from harness.run.run import run_level
 
     combos = valid_combinations()
     assert len(combos) == 31  # of the 2^7 subsets: 5 without contact, 26 with (friction x2 on each of 13)

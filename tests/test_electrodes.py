@@ -11,8 +11,8 @@ import numpy as np
 import pytest
 
 from harness.cli import main
-from harness.contract import ExitCode
-from harness.fields import read_state
+from harness.core.contract import ExitCode
+from harness.measure.fields import read_state
 from physics_runs import DATA, solve
 
 # PZT-5H (freefem/materials/PZT-5H.idp): the constants the exact solution needs.

@@ -1,6 +1,6 @@
-"""The level runner (harness/engine.py) on the stub solver: a LevelOutcome per level with the
+"""The level runner (harness/study/engine.py) on the stub solver: a LevelOutcome per level with the
 failure classified by FreeFEM's exit code, a chain that stops at its first failure, and
-independent chains mapped side by side (harness/executor.py's `each`) giving what they give
+independent chains mapped side by side (harness/study/executor.py's `each`) giving what they give
 one after the other."""
 
 from __future__ import annotations
@@ -8,11 +8,11 @@ from __future__ import annotations
 from concurrent.futures import ThreadPoolExecutor
 from pathlib import Path
 
-from harness.contract import Failure
-from harness.engine import InlineMeshes, quiet, run_levels, runs_of
-from harness.executor import each
-from harness.layout import Layout
-from harness.scene import load_scene
+from harness.core.contract import Failure
+from harness.study.engine import InlineMeshes, quiet, run_levels, runs_of
+from harness.study.executor import each
+from harness.core.layout import Layout
+from harness.scene.scene import load_scene
 
 DATA = Path(__file__).parent / "data"
 STUB = DATA / "stub_freefem"

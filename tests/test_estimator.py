@@ -17,9 +17,9 @@ import meshio
 import numpy as np
 import pytest
 
-from harness.layout import REPO, Layout
-from harness.scene import load_scene
-from harness.verification import MMS_CASES, MMS_CASES_3D, effectivity_table, mms_runs
+from harness.core.layout import REPO, Layout
+from harness.scene.scene import load_scene
+from harness.study.verification import MMS_CASES, MMS_CASES_3D, effectivity_table, mms_runs
 
 LINEAR = {  # the P1-space solution of tests/test_mms.py: contact closes and slips on part of Gamma_3
     "u1": "1e-8*(1.6 - 0.4*x + 0.3*y)", "u2": "1e-8*(0.6 - 0.4*x + 0.5*y)",

@@ -12,13 +12,13 @@ from pathlib import Path
 
 import pytest
 
-from harness.engine import BackgroundMeshes, quiet, run_levels, runs_of
-from harness.errors import RunError, SceneError
-from harness.executor import cluster, each, parse_cluster
-from harness.layout import Layout
-from harness.run import RunResult
-from harness.scene import Scene, load_scene
-from harness.study import error_table
+from harness.study.engine import BackgroundMeshes, quiet, run_levels, runs_of
+from harness.core.errors import RunError, SceneError
+from harness.study.executor import cluster, each, parse_cluster
+from harness.core.layout import Layout
+from harness.run.run import RunResult
+from harness.scene.scene import Scene, load_scene
+from harness.study.study import error_table
 
 pytest.importorskip("distributed", reason="dask/distributed missing (the 'cluster' extra; `make test` installs it)")
 
@@ -138,7 +138,7 @@ def test_each_runs_pieces_side_by_side_in_order_in_this_process_and_on_a_cluster
 def test_two_workers_running_the_same_levels_at_once_leave_one_complete_result(dask, tmp_path):
     """Both workers run (forced) the same chain into one results tree: each level is swapped
     in whole, so the survivor is complete, passes its checksums and is reused afterwards."""
-    from harness.cache import corrupted
+    from harness.run.cache import corrupted
 
     layout = Layout(results=tmp_path)
     scene = load_scene(CASES / "paper.toml")
@@ -201,21 +201,21 @@ def modules_and_profiler() -> tuple[bool, bool]:
 
     import dask as dask_module
 
-    return "harness.hard_cases" in sys.modules, dask_module.config.get("distributed.worker.profile.enabled")
+    return "harness.study.hard_cases" in sys.modules, dask_module.config.get("distributed.worker.profile.enabled")
 
 
 def test_a_warmed_local_cluster_has_the_harness_imported_and_no_profiler(dask):
     """What make scale times on a cluster is the study, not the workers' imports (the modules
     its caller names); and the workers' statistical profiler (a thread sampling every 10 ms)
     is off."""
-    dask.warm(["harness.hard_cases"])
+    dask.warm(["harness.study.hard_cases"])
     assert set(dask.client.run(modules_and_profiler).values()) == {(True, False)}
 
 
 def test_stress_summaries_are_compared_to_round_off_not_bit_for_bit():
     import pandas as pd
 
-    from harness.scale_out import same_summary
+    from harness.study.scale_out import same_summary
 
     table = pd.DataFrame({"case": ["a", "b"], "status": ["converged", "diverged"], "newton": [3, 7],
                           "force": [1.0, 2.5e-6]})
@@ -236,7 +236,7 @@ def test_stress_summaries_are_compared_to_round_off_not_bit_for_bit():
 
 def test_each_gives_a_cluster_the_costliest_items_first_and_returns_them_in_order():
     """Longest processing time first: a long case submitted last would run alone at the end."""
-    from harness.executor import each
+    from harness.study.executor import each
 
     class Recorder:  # DaskExecutor's submit, run at once, remembering the order
         def __init__(self) -> None:

@@ -10,8 +10,8 @@ import numpy as np
 import pytest
 
 from harness.cli import main
-from harness.contract import ExitCode
-from harness.fields import read_state
+from harness.core.contract import ExitCode
+from harness.measure.fields import read_state
 from physics_runs import DATA, solve
 
 # PZT-5H (freefem/materials/PZT-5H.idp): the constants the exact solutions need.
@@ -132,8 +132,8 @@ def test_a_floating_electrode_needs_the_potential(tmp_path, capsys):
 def test_only_a_scene_with_a_floating_part_compiles_the_elimination():
     """Scenes without the role compile to the scheme they had (no FLOATING macro: every hook of
     freefem/floating.idp is empty)."""
-    from harness.floating import floating_macros
-    from harness.scene import load_scene
+    from harness.scene.floating import floating_macros
+    from harness.scene.scene import load_scene
     assert floating_macros(load_scene(DATA / "layer.toml").geometry) == {}
     assert floating_macros(load_scene(DATA / "floating_layer.toml").geometry) == {"FLOATING": "1"}
     assert floating_macros(load_scene(DATA / "floating_sensor3d.toml").geometry) == {"FLOATING": "1"}

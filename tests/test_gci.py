@@ -8,9 +8,9 @@ import math
 import pandas as pd
 import pytest
 
-from harness.gci import SAFETY, observed_order, three_grid
-from harness.record import RunRecord
-from harness.gci import finest_triples, gci_table
+from harness.measure.gci import SAFETY, observed_order, three_grid
+from harness.run.record import RunRecord
+from harness.measure.gci import finest_triples, gci_table
 
 
 def power_law(f0: float, c: float, p: float, h: tuple[float, ...]) -> tuple[float, ...]:

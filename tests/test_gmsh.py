@@ -12,14 +12,14 @@ import meshio
 import numpy as np
 import pytest
 
-from harness.checks import contact_node_count, contact_nodes, contact_normal
+from harness.measure.checks import contact_node_count, contact_nodes, contact_normal
 from harness.cli import main
-from harness.contract import ExitCode, ROLE_LABELS
-from harness.errors import MeshError
-from harness.gmsh_mesh import oriented, quality
-from harness.mesh import build_mesh
-from harness.scene import load_scene
-from harness.fields import read_state
+from harness.core.contract import ExitCode, ROLE_LABELS
+from harness.core.errors import MeshError
+from harness.mesh.gmsh_mesh import oriented, quality
+from harness.mesh.mesh import build_mesh
+from harness.scene.scene import load_scene
+from harness.measure.fields import read_state
 from physics_runs import CASES, DATA, solve
 from test_parallel import RTOL, mpi_missing
 

@@ -9,7 +9,7 @@ import shutil
 from pathlib import Path
 
 from harness.cli import main
-from harness.layout import REPO
+from harness.core.layout import REPO
 
 PIECES = sorted(p.relative_to(REPO / "freefem") for p in (REPO / "freefem").rglob("*.idp"))
 

@@ -10,13 +10,13 @@ from pathlib import Path
 import numpy as np
 import pytest
 
-from harness.errors import SceneError
-from harness.fields import read_state
-from harness.layout import Layout
-from harness.mesh import build_mesh
-from harness.run import run_level
-from harness.scene import load_scene
-from harness.schema import LINEAR_SOLVERS
+from harness.core.errors import SceneError
+from harness.measure.fields import read_state
+from harness.core.layout import Layout
+from harness.mesh.mesh import build_mesh
+from harness.run.run import run_level
+from harness.scene.scene import load_scene
+from harness.scene.schema import LINEAR_SOLVERS
 
 CASE = Path(__file__).parents[1] / "cases" / "paper.toml"
 N = 4

@@ -12,15 +12,15 @@ from pathlib import Path
 import pytest
 
 from harness.cli import main
-from harness.record import RunRecord, read_run_json
-from harness.freefem import command, invoke
+from harness.run.record import RunRecord, read_run_json
+from harness.core.freefem import command, invoke
 
 ROOT = Path(__file__).parents[1]
 FREEFEM = ROOT / "freefem"
 PAPER = ROOT / "tests" / "data" / "paper.toml"
 TEMPLATE = FREEFEM / "materials" / "TEMPLATE.idp.txt"
 MATERIALS = sorted(p.stem for p in (FREEFEM / "materials").glob("*.idp"))
-INVALID_MATERIAL = 14  # material.idp's exit code (harness/freefem.py EXIT_REASONS)
+INVALID_MATERIAL = 14  # material.idp's exit code (harness/core/freefem.py EXIT_REASONS)
 
 # Ouafik (2019) section 4.2, as the scheme used them before materials carried 3D sets.
 PAPER_BATIO3 = dict(

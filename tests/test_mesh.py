@@ -10,11 +10,11 @@ import numpy as np
 import pytest
 from matplotlib.tri import Triangulation
 
-from harness.errors import MeshError
-from harness.mesh import build_mesh
-from harness.mesh_check import check_mesh
-from harness.scene import load_scene
-from harness.schema import ROLE_LABELS
+from harness.core.errors import MeshError
+from harness.mesh.mesh import build_mesh
+from harness.mesh.mesh_check import check_mesh
+from harness.scene.scene import load_scene
+from harness.scene.schema import ROLE_LABELS
 
 
 def read(path: Path) -> tuple[np.ndarray, np.ndarray, meshio.Mesh]:
@@ -160,7 +160,9 @@ def test_our_msh_writer_gives_gmsh_own_bytes(case, tmp_path):
     so FreeFEM reads the same mesh, node for node, as before."""
     import gmsh
 
-    from harness import mesh, signals
+    from harness.mesh import mesh
+
+    from harness.core import signals
 
     geometry = load_scene(Path(__file__).resolve().parents[1] / "cases" / case).geometry
     n = 8
@@ -190,7 +192,7 @@ def test_the_scripts_msh_reader_gives_gmshloads_mesh(paper_case, tmp_path):
     import os
     import subprocess
 
-    from harness.freefem import PLUGIN_PATH
+    from harness.core.freefem import PLUGIN_PATH
 
     msh = build_mesh(load_scene(paper_case).geometry, 8, tmp_path).path
     freefem = Path(__file__).resolve().parents[1] / "freefem"

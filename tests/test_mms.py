@@ -14,15 +14,16 @@ import pandas as pd
 import pytest
 import sympy
 
-from harness import freefem
-from harness.errors import SceneError
-from harness.fields import read_fields
-from harness.layout import REPO, Layout
-from harness.mms import MACROS, X, Y, derive, fe_errors, macros, material_constants, numeric, parse_exact
-from harness.norm_table import MMS_NORMS
-from harness.scene import load_scene
-from harness.script import main_script
-from harness.verification import BANDS, MMS_CASES, mms_errors, mms_rates
+from harness.core import freefem
+from harness.core.errors import SceneError
+from harness.measure.fields import read_fields
+from harness.core.layout import REPO, Layout
+from harness.measure.norms import fe_errors
+from harness.scene.mms import MACROS, X, Y, derive, macros, material_constants, numeric, parse_exact
+from harness.measure.norm_table import MMS_NORMS
+from harness.scene.scene import load_scene
+from harness.run.script import main_script
+from harness.study.verification import BANDS, MMS_CASES, mms_errors, mms_rates
 
 COMMITTED = REPO / "tests" / "gold" / "mms_levels.csv"  # `make gold` refreshes it from `make verify`
 
@@ -152,7 +153,7 @@ def test_a_bad_exact_field_is_a_scene_error_naming_the_key(text, words):
 
 
 def test_freefem_evaluates_the_emitted_expressions_as_sympy_does(tmp_path, derived):
-    """The macros as harness/script.py writes them, evaluated by FreeFEM at a few points and
+    """The macros as harness/run/script.py writes them, evaluated by FreeFEM at a few points and
     compared with sympy: catches syntax (powers, integer division, precedence) and digits."""
     emitted = macros(derived)
     header = [line for line in main_script("BaTiO3", (), Layout(), macros=emitted).splitlines()

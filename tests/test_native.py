@@ -1,4 +1,4 @@
-"""Native code built on first use (harness/native.py): a failed build is one line that names
+"""Native code built on first use (harness/core/native.py): a failed build is one line that names
 what is missing."""
 
 from __future__ import annotations
@@ -8,8 +8,8 @@ from pathlib import Path
 
 import pytest
 
-from harness.errors import EnvironmentFault
-from harness.native import Build, library
+from harness.core.errors import EnvironmentFault
+from harness.core.native import Build, library
 
 # What OpenMPI's mpicxx writes when the C++ compiler it wraps is not installed (mpicxx from
 # Debian's libopenmpi-dev with OMPI_CXX naming a missing compiler, copied from a run on this

@@ -7,8 +7,8 @@ from __future__ import annotations
 import subprocess
 from pathlib import Path
 
-from harness import freefem
-from harness.layout import REPO
+from harness.core import freefem
+from harness.core.layout import REPO
 
 FREEFEM = REPO / "freefem"
 

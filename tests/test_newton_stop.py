@@ -9,12 +9,12 @@ from pathlib import Path
 
 import numpy as np
 
-from harness.fields import read_state
-from harness.layout import Layout
-from harness.mesh import build_mesh
-from harness.run import run_level
-from harness.scene import load_scene
-from harness.engine import run_levels, runs_of
+from harness.measure.fields import read_state
+from harness.core.layout import Layout
+from harness.mesh.mesh import build_mesh
+from harness.run.run import run_level
+from harness.scene.scene import load_scene
+from harness.study.engine import run_levels, runs_of
 
 CASE = Path(__file__).parents[1] / "cases" / "paper.toml"
 RTOL = 1e-9

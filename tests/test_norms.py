@@ -8,15 +8,15 @@ import meshio
 import numpy as np
 import pytest
 
-from harness.errors import FieldsError
-from harness.fields import Fields, read_fields
-from harness.mesh import build_mesh
-from harness.layout import REPO
-from harness.norm_table import FIELD_NAMES, MEASURE, MMS_NORMS, norm_table_idp, norm_table_path
-from harness.norms import (EXACT_INTEGRANDS, P1_INTEGRANDS, error_norms, exact_errors, gradient_seminorm_sq, seminorm,
+from harness.core.errors import FieldsError
+from harness.measure.fields import Fields, read_fields
+from harness.mesh.mesh import build_mesh
+from harness.core.layout import REPO
+from harness.measure.norm_table import FIELD_NAMES, MEASURE, MMS_NORMS, norm_table_idp, norm_table_path
+from harness.measure.norms import (EXACT_INTEGRANDS, P1_INTEGRANDS, error_norms, exact_errors, gradient_seminorm_sq, seminorm,
                            strain_seminorm_sq, transfer)
-from harness.unknowns import FIELDS
-from harness.scene import load_scene
+from harness.scene.unknowns import FIELDS
+from harness.scene.scene import load_scene
 
 AREA = 4.0  # the paper's (0,4)x(0,1)
 # Each norm is a sum of a few hundred positive terms of exact P1 gradients: relative
@@ -153,8 +153,8 @@ def test_point_location_in_unstructured_tetrahedra_reproduces_linear_fields(tmp_
     """The error transfer on non-nested 3D meshes (norms.tetrahedron_weights): P1 interpolation
     is exact for a linear field at any point; on a Kuhn mesh it finds the tetrahedra the
     grid-based kuhn_weights finds, with the same weights."""
-    from harness.box_mesh import grid_index, kuhn_box, kuhn_weights
-    from harness.norms import tetrahedron_weights
+    from harness.mesh.box_mesh import grid_index, kuhn_box, kuhn_weights
+    from harness.measure.norms import tetrahedron_weights
 
     box = load_scene(Path(__file__).parents[1] / "cases" / "hard" / "unstructured3d.toml").geometry
     raw = meshio.read(build_mesh(box, 4, tmp_path).path)
@@ -178,14 +178,14 @@ def test_point_location_in_unstructured_tetrahedra_reproduces_linear_fields(tmp_
 
 
 def test_committed_norm_table_idp_is_generated_from_the_table():
-    """freefem/norm_table.idp is `python -m harness.norm_table`'s output: FreeFEM and Python
+    """freefem/norm_table.idp is `python -m harness.measure.norm_table`'s output: FreeFEM and Python
     measure each field in the same norm."""
     assert norm_table_path().read_text() == norm_table_idp()
 
 
 def test_every_norm_of_the_table_has_its_integrands_in_both_languages():
     """Each stem the table names is an integrand of freefem/norms.idp (of a difference and of a
-    field alone) and of harness/norms.py; the error measure covers every field once."""
+    field alone) and of harness/measure/norms.py; the error measure covers every field once."""
     idp = (REPO / "freefem" / "norms.idp").read_text()
     for stem in {t.stem for t in MEASURE} | {s for n in MMS_NORMS for s in (n.vector, n.scalar)}:
         assert f"macro {stem}DiffSq(s, a, b)" in idp and f"macro {stem}Sq(b)" in idp, stem

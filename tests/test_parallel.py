@@ -1,4 +1,4 @@
-"""One level on two MPI ranks (freefem/scheme.idp with ranks.idp, harness/launcher.py) against one rank:
+"""One level on two MPI ranks (freefem/scheme.idp with ranks.idp, harness/run/launcher.py) against one rank:
 the same solution to within the Newton tolerance, Gamma_3 cut by the decomposition, the
 parallel figures in run.json; and the launcher's pieces without MPI."""
 
@@ -11,11 +11,11 @@ from pathlib import Path
 import numpy as np
 import pytest
 
-from harness.errors import SceneError
-from harness.fields import read_state
-from harness.launcher import IDP_PATH, MPI_PLUGIN_PATH, Ranks, post_pass_options, without_newton_steps
-from harness.record import read_run_json
-from harness.scene import load_scene
+from harness.core.errors import SceneError
+from harness.measure.fields import read_state
+from harness.run.launcher import IDP_PATH, MPI_PLUGIN_PATH, Ranks, post_pass_options, without_newton_steps
+from harness.run.record import read_run_json
+from harness.scene.scene import load_scene
 from physics_runs import CASES, solve
 
 RTOL = 1e-9  # cases/paper.toml's newton.rtol: each field's relative increment at the stop
@@ -93,7 +93,7 @@ def test_the_post_pass_reads_the_ranks_record_and_takes_no_newton_step(tmp_path)
     ('scene.effects=["piezoelectric", "thermal", "contact"]', "staggered"),
 ])
 def test_what_the_ranks_cannot_do_is_refused_before_running(override, message, tmp_path):
-    from harness.launcher import check_parallel
+    from harness.run.launcher import check_parallel
     scene = load_scene(CASES / "paper.toml", ["run.ranks=2", override])
     with pytest.raises(SceneError, match=message):
         check_parallel(scene)
@@ -122,7 +122,7 @@ def test_a_results_path_with_a_space_runs_on_two_ranks(tmp_path):
 def test_how_many_ranks_a_level_can_take():
     """At least launcher.NODES_PER_RANK (9) mesh nodes a rank: the paper's n = 2 (27 nodes)
     takes 3 ranks, n = 4 (85) 9, paper3d's n = 2 (81) 9; a level takes run.ranks when it can."""
-    from harness.launcher import level_capacity, level_scene
+    from harness.run.launcher import level_capacity, level_scene
 
     paper = load_scene(CASES / "paper.toml", ["run.ranks=4"])
     assert [level_capacity(paper, n) for n in (1, 2, 4, 8)] == [1, 3, 9, 33]  # 10, 27, 85, 297 nodes
@@ -200,7 +200,7 @@ def test_each_subdomain_is_factorised_by_the_scenes_solver(solver, name, tmp_pat
 
 
 def test_the_mpi_shim_is_built_once_per_source_and_preloaded_first(tmp_path, monkeypatch):
-    from harness import mpi_shim
+    from harness.run import mpi_shim
 
     source = tmp_path / "shim.c"
     source.write_text(mpi_shim.SOURCE.read_text())
@@ -216,8 +216,8 @@ def test_the_mpi_shim_is_built_once_per_source_and_preloaded_first(tmp_path, mon
 
 
 def test_the_mpi_shim_without_a_compiler_or_with_a_broken_source_is_one_line(tmp_path, monkeypatch):
-    from harness import mpi_shim
-    from harness.errors import EnvironmentFault
+    from harness.run import mpi_shim
+    from harness.core.errors import EnvironmentFault
 
     source = tmp_path / "shim.c"
     source.write_text("int broken(\n")
@@ -286,9 +286,9 @@ def test_more_ranks_with_non_zero_dirichlet_data_give_the_one_rank_solution(rank
     """The manufactured contact case (non-zero Dirichlet data on Gamma_1): where a rank's
     artificial boundary meets Gamma_1, the start must take its owners' values, or the ranks
     disagree (5-16 % off on 3 ranks before the start was made consistent)."""
-    from harness.layout import Layout
-    from harness.mesh import build_mesh
-    from harness.run import run_level
+    from harness.core.layout import Layout
+    from harness.mesh.mesh import build_mesh
+    from harness.run.run import run_level
 
     layout = Layout(results=tmp_path)
     states = []
@@ -321,8 +321,8 @@ def test_two_ranks_give_the_one_rank_solution_in_3d(tmp_path):
 @pytest.mark.skipif(bool(mpi_missing()), reason=mpi_missing() or "-")
 @pytest.mark.heavy  # 13 s: `make test-heavy`
 def test_the_scale_table_compares_each_rank_count_with_one_rank(tmp_path):
-    from harness.layout import Layout
-    from harness.scale_out import mpi_table
+    from harness.core.layout import Layout
+    from harness.study.scale_out import mpi_table
 
     table = mpi_table(CASES / "paper3d.toml", (2,), (1, 2), Layout(results=tmp_path))
     one, two = (row for _, row in table.iterrows())
@@ -342,7 +342,7 @@ def test_a_mesh_too_coarse_for_its_ranks_is_refused_not_solved_wrong(tmp_path, c
     unknowns 0.5 or 1.5 times there (its solution came out 50 % off); the run stops instead.
     The harness no longer sends such a level to FreeFEM (launcher.level_capacity runs it on
     3); with that rule loosened to let 4 ranks through, FreeFEM's own check still stops it."""
-    from harness import launcher
+    from harness.run import launcher
     from harness.cli import main
 
     monkeypatch.setattr(launcher, "NODES_PER_RANK", 6)  # 27 nodes // 6 = 4 ranks
@@ -360,10 +360,10 @@ def coarse_operator(tmp_path: Path, ranks: int, n: int, coarse_levels: int) -> n
     A_c is the product P^T J P of the whole tangent, formed at once."""
     import subprocess
 
-    from harness import launcher
-    from harness.mesh import build_mesh
-    from harness.layout import Layout
-    from harness.run import solver_inputs
+    from harness.run import launcher
+    from harness.mesh.mesh import build_mesh
+    from harness.core.layout import Layout
+    from harness.run.run import solver_inputs
 
     layout = Layout(results=tmp_path / "results")
     scene = load_scene(CASES / "paper.toml", ["run.ranks=2", "run.coarse_space=nested",
@@ -491,8 +491,8 @@ def test_the_scale_table_times_two_ranks_with_and_without_the_coarse_space(tmp_p
     """`make scale` measures 2 ranks with the one-level Schwarz and with its coarse space
     (run.coarse_space): the same solution as one rank to round-off either way, fewer Krylov
     iterations with the second level (2D n = 16: 29 28 28 one-level, 18 16 16 nested)."""
-    from harness.layout import Layout
-    from harness.scale_out import mpi_table
+    from harness.core.layout import Layout
+    from harness.study.scale_out import mpi_table
 
     table = mpi_table(CASES / "paper.toml", (16,), (1, 2), Layout(results=tmp_path), ("none", "nested"))
     assert list(zip(table.ranks, table.coarse_space)) == [(1, "none"), (2, "none"), (2, "nested")]
@@ -508,7 +508,7 @@ def test_the_coarse_space_names_the_level_of_its_own_mesh(tmp_path):
     """A split gmsh scene's nested family starts at its own coarsest level (here 4): the coarse
     space's mesh and the level FreeFEM is told (and records) are the same one. Before, the
     mesh was n = 4's and the level said 2."""
-    from harness.run import coarse_space_options
+    from harness.run.run import coarse_space_options
 
     scene = load_scene(CASES / "paper_gmsh.toml", ["geometry.coarsest=4", "study.levels=[4, 8, 16]", "run.ranks=2"])
     options = coarse_space_options(scene, 16, tmp_path / "mesh_n16.msh", make=False)

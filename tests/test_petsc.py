@@ -11,24 +11,25 @@ from pathlib import Path
 import numpy as np
 import pytest
 
-from harness import petsc_plugin
+from harness.run import petsc_plugin
+from harness.scene import petsc_options
 from harness.cli import main
-from harness.contract import ExitCode
-from harness.errors import EnvironmentFault, SceneError
-from harness.faults import exit_code
-from harness.fields import read_state
-from harness.layout import Layout
-from harness.mesh import build_mesh, coarser_levels
-from harness.run import run_level
-from harness.scene import load_scene
-from harness.unknowns import Unknowns
+from harness.core.contract import ExitCode
+from harness.core.errors import EnvironmentFault, SceneError
+from harness.core.faults import exit_code
+from harness.measure.fields import read_state
+from harness.core.layout import Layout
+from harness.mesh.mesh import build_mesh, coarser_levels
+from harness.run.run import run_level
+from harness.scene.scene import load_scene
+from harness.scene.unknowns import Unknowns
 
 CASES = Path(__file__).parents[1] / "cases"
 # Every scene's effect set (the 2D scenes) and both 3D scenes, at a coarse level.
 SCENES = [("elastic", 8), ("electroelastic", 8), ("thermoelastic", 8), ("heated", 8), ("paper", 8),
           ("longcontact", 4), ("paper3d", 4), ("slab3d", 2)]
 # Preconditioners of the solver table (docs/solvers.md), on one scene each way.
-LU_MUMPS = petsc_plugin.MUMPS_LU
+LU_MUMPS = petsc_options.MUMPS_LU
 BLR = LU_MUMPS + " -mat_mumps_icntl_35 2 -mat_mumps_cntl_7 1e-8"
 
 
@@ -76,16 +77,16 @@ def test_the_field_split_names_the_scenes_fields(tmp_path):
     for case in ("elastic", "heated", "paper"):
         scene = load_scene(CASES / f"{case}.toml")
         fields = tuple(f.name for f in Unknowns(scene.effects, scene.dimension).newton)
-        options = petsc_plugin.field_split_options(fields)
+        options = petsc_options.field_split_options(fields)
         named = {w.split("_")[1] for w in options.split() if w.startswith("-fieldsplit_")}
         assert named == (set(fields) if len(fields) > 1 else set())
     direct = solve(tmp_path, "paper", 8, "mumps")
-    split = solve(tmp_path, "paper", 8, "petsc", petsc_plugin.field_split_options(("u", "phi", "theta")))
+    split = solve(tmp_path, "paper", 8, "petsc", petsc_options.field_split_options(("u", "phi", "theta")))
     assert_same_fields(split, direct)
 
 
 def test_the_default_options_are_the_measured_choice():
-    assert load_scene(CASES / "paper.toml", ['run.linear_solver="petsc"']).petsc_options == petsc_plugin.MUMPS_LU
+    assert load_scene(CASES / "paper.toml", ['run.linear_solver="petsc"']).petsc_options == petsc_options.MUMPS_LU
     given = load_scene(CASES / "paper.toml", ['run.petsc_options=" -pc_type hypre "'])
     assert given.petsc_options == "-pc_type hypre"
 
@@ -162,8 +163,8 @@ def test_the_coarser_levels_halve_n_down_to_the_coarsest():
 
 def test_the_3d_default_is_multigrid_and_holds_no_factor_of_the_whole():
     scene = load_scene(CASES / "paper3d.toml")
-    assert scene.linear_solver == "petsc" and scene.petsc_options == petsc_plugin.MULTIGRID
-    assert petsc_plugin.multigrid(scene.petsc_options) and scene.multigrid_levels == 4
+    assert scene.linear_solver == "petsc" and scene.petsc_options == petsc_options.MULTIGRID
+    assert petsc_options.multigrid(scene.petsc_options) and scene.multigrid_levels == 4
     # Its only factorisation is the coarsest level's: the memory guard counts no fill.
     assert not scene.factorises
     assert load_scene(CASES / "paper3d.toml", ['run.linear_solver="mumps"']).multigrid_levels == 0
@@ -175,7 +176,7 @@ def test_multigrid_reaches_the_direct_solution(tmp_path, case, n, coarsest, leve
     interpolation; at n = 8 there is no coarser mesh (run.multigrid_coarsest) and the coarse
     solve is the whole one."""
     direct = solve(tmp_path, case, n, "mumps")
-    mg = solve(tmp_path, case, n, "petsc", petsc_plugin.MULTIGRID, (f"run.multigrid_coarsest={coarsest}",))
+    mg = solve(tmp_path, case, n, "petsc", petsc_options.MULTIGRID, (f"run.multigrid_coarsest={coarsest}",))
     assert_same_fields(mg, direct)
     assert abs(mg.record.newton_iterations - direct.record.newton_iterations) <= 1
     assert f"multigrid: {levels} levels" in (mg.directory / "stdout.txt").read_text()
@@ -187,7 +188,7 @@ def test_multigrid_krylov_iterations_do_not_grow_as_h_shrinks(tmp_path):
     levels) are those at n = 16 (two levels) within two; measured 5 4 5 8 and 5 3 3 7."""
     most = {}
     for n in (16, 64):
-        run = solve(tmp_path, "paper", n, "petsc", petsc_plugin.MULTIGRID, ('scene.coarsest_guess="zero"',))
+        run = solve(tmp_path, "paper", n, "petsc", petsc_options.MULTIGRID, ('scene.coarsest_guess="zero"',))
         its = run.record.linear_iterations
         assert run.record.converged and len(its) >= 3
         most[n] = max(its)

@@ -1,4 +1,4 @@
-"""The pipelined chain (harness/engine.py, freefem/bulk.idp): each level's FreeFEM starts
+"""The pipelined chain (harness/study/engine.py, freefem/bulk.idp): each level's FreeFEM starts
 while the level below is still running and reads that level's state from stdin. It must
 give the same solutions as running one level at a time, and a failure must not leave the
 early-started process or its directory behind."""
@@ -11,12 +11,12 @@ from pathlib import Path
 import numpy as np
 import pytest
 
-from harness.errors import RunError
-from harness.fields import read_state
-from harness.layout import Layout
-from harness.mesh import build_mesh
-from harness.scene import load_scene
-from harness.engine import run_levels, runs_of
+from harness.core.errors import RunError
+from harness.measure.fields import read_state
+from harness.core.layout import Layout
+from harness.mesh.mesh import build_mesh
+from harness.scene.scene import load_scene
+from harness.study.engine import run_levels, runs_of
 
 CASE = Path(__file__).parents[1] / "cases" / "paper.toml"
 LEVELS = (2, 4, 8)
@@ -75,7 +75,7 @@ def test_the_finest_level_starts_with_the_coarsest_and_only_when_it_will_run(tmp
     """Issue 13, item 6: the finest level's setup overlaps the whole chain below it. Its
     FreeFEM is launched while the coarsest runs, before the next level's; a second,
     cached study launches none (the finest's result is there and is reused)."""
-    from harness.run import LevelRun
+    from harness.run.run import LevelRun
 
     launched: list[int] = []
     original = LevelRun.launch_early

@@ -14,14 +14,14 @@ from pathlib import Path
 import numpy as np
 import pytest
 
-from harness import freefem
+from harness.core import freefem
 from harness.cli import main
-from harness.contract import ExitCode, contract_path
-from harness.errors import SceneError
-from harness.fields import read_state
-from harness.layout import Layout
-from harness.materials import values as material_values
-from harness.poling import parse_poling
+from harness.core.contract import ExitCode, contract_path
+from harness.core.errors import SceneError
+from harness.measure.fields import read_state
+from harness.core.layout import Layout
+from harness.scene.materials import values as material_values
+from harness.scene.poling import parse_poling
 from physics_runs import CASES, DATA
 
 LAYOUT = Layout()
@@ -293,12 +293,12 @@ def test_a_cube_and_its_poling_turned_give_the_turned_solution(tmp_path):
 @pytest.mark.parametrize("case, axis", [("bulk", "[0.6, 0.8]"), ("bulk3d", "[0.48, -0.6, 0.64]")])
 def test_linear_manufactured_fields_are_reproduced_with_an_oblique_poling(tmp_path, case, axis):
     """Linear exact fields are P1 functions: with every entry of the rotated tensors in the
-    law (harness/mms.py derives the data with its own Voigt sums, freefem/constitutive.idp
+    law (harness/scene/mms.py derives the data with its own Voigt sums, freefem/constitutive.idp
     assembles its `rotated` terms), the discrete solution is their interpolant to round-off.
     A wrong sign on any one rotated entry leaves an O(1) error."""
-    from harness.layout import Layout as ResultsLayout
-    from harness.scene import load_scene
-    from harness.verification import mms_errors
+    from harness.core.layout import Layout as ResultsLayout
+    from harness.scene.scene import load_scene
+    from harness.study.verification import mms_errors
 
     linear = {"u1": "1e-8*(1.6 - 0.4*x + 0.3*y)", "u2": "1e-8*(0.6 - 0.4*x + 0.5*y)",
               "phi": "30 - 12*x + 20*y", "theta": "1e-3*(0.5 + 0.2*x - 0.6*y)"}

@@ -9,11 +9,11 @@ from pathlib import Path
 import pandas as pd
 import pytest
 
-from harness.layout import Layout
-from harness.mesh import build_mesh
-from harness.record import RunRecord
-from harness.run import run_level
-from harness.scene import load_scene
+from harness.core.layout import Layout
+from harness.mesh.mesh import build_mesh
+from harness.run.record import RunRecord
+from harness.run.run import run_level
+from harness.scene.scene import load_scene
 from harness.studies.profile import PEAK, TOTAL, WALL, level_rows, markdown
 
 CASES = Path(__file__).parents[1] / "cases"

@@ -7,9 +7,9 @@ import re
 
 import pytest
 
-from harness.errors import FieldsError
-from harness.layout import REPO
-from harness.record import CHECK_KEYS, HARNESS_KEYS, KEYS, RunRecord
+from harness.core.errors import FieldsError
+from harness.core.layout import REPO
+from harness.run.record import CHECK_KEYS, HARNESS_KEYS, KEYS, RunRecord
 
 FREEFEM = REPO / "freefem"
 # A top-level key: `jsonField(f, "name", ...)`, `perFieldJson(f, "name", ...)` (json.idp) or a

@@ -16,8 +16,8 @@ import numpy as np
 import pytest
 
 from harness.cli import main
-from harness.contract import ExitCode
-from harness.fields import read_state
+from harness.core.contract import ExitCode
+from harness.measure.fields import read_state
 from physics_runs import CASES, DATA, solve
 
 # freefem/materials/Brass.idp (isotropic) and PZT-5H.idp: C33 and C13 [Pa].

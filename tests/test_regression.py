@@ -13,7 +13,7 @@ from pathlib import Path
 import pandas as pd
 
 from harness.cli import main
-from harness.rates import SlopeFit, slope_fit
+from harness.measure.rates import SlopeFit, slope_fit
 
 ROOT = Path(__file__).parents[1]
 BASELINE = ROOT / "tests" / "gold" / "paper_fast"  # `make baseline` refreshes it

@@ -19,9 +19,13 @@ from typing import Iterator
 
 import pytest
 
-from harness import atomic, cache, checks, guards
+from harness.core import atomic, guards
+
+from harness.run import cache
+
+from harness.measure import checks
 from harness.cli import main
-from harness.layout import REPO, Layout
+from harness.core.layout import REPO, Layout
 
 STUB = REPO / "tests" / "data" / "stub_freefem"
 STUB_CASE = REPO / "tests" / "data" / "paper.toml"
@@ -256,7 +260,8 @@ def test_a_full_disk_while_freefem_writes_its_outputs(capsys, tmp_path, size):
 def test_a_full_disk_while_meshing_monkeypatched(capsys, tmp_path, monkeypatch):
     """The same without root: the mesh writer gets half its file out, then ENOSPC (as a
     write on a full disk does), and the disk reports no space left."""
-    from harness import faults, mesh
+    from harness.core import faults
+    from harness.mesh import mesh
 
     real = mesh.write_rectangle_msh
 
@@ -274,7 +279,7 @@ def test_a_full_disk_while_meshing_monkeypatched(capsys, tmp_path, monkeypatch):
 
 def test_a_full_disk_while_writing_the_report_keeps_the_earlier_one(capsys, tmp_path, monkeypatch):
     """ENOSPC from the report writer (monkeypatched): exit 4, one line, the earlier study whole."""
-    from harness import report
+    from harness.report import report
 
     assert run(capsys, tmp_path / "results", "convergence", str(STUB_CASE), "--levels", "2,4,8")[0] == 0
     case = tmp_path / "results" / "paper"
@@ -299,7 +304,7 @@ NAMELESS_FULL = OSError(errno.ENOSPC, os.strerror(errno.ENOSPC))
 
 @pytest.mark.parametrize("writer, file", [("plot_convergence", "convergence.png"), ("csv_text", "convergence.csv")])
 def test_a_full_disk_while_writing_the_report_names_the_file(capsys, tmp_path, monkeypatch, writer, file):
-    from harness import report
+    from harness.report import report
 
     def full(*args, **kwargs):
         raise OSError(*NAMELESS_FULL.args)
@@ -313,8 +318,8 @@ def test_a_full_disk_while_writing_the_report_names_the_file(capsys, tmp_path, m
 
 def test_a_full_disk_in_an_atomic_write_names_the_file(tmp_path, monkeypatch):
     """Every table, Markdown and JSON file of the studies goes through write_atomic."""
-    from harness.faults import fault
-    from harness.writers import write_json
+    from harness.core.faults import fault
+    from harness.core.writers import write_json
 
     def full(self, *args, **kwargs):
         raise OSError(*NAMELESS_FULL.args)
@@ -327,8 +332,8 @@ def test_a_full_disk_in_an_atomic_write_names_the_file(tmp_path, monkeypatch):
 
 def test_a_nameless_os_error_in_a_report_names_the_study_directory(tmp_path):
     """Any other writer of a study's report: the directory the study writes is named."""
-    from harness.faults import fault
-    from harness.pipeline import Plan, run_pipeline
+    from harness.core.faults import fault
+    from harness.study.pipeline import Plan, run_pipeline
 
     def report(_: object) -> None:
         raise OSError(*NAMELESS_FULL.args)
@@ -342,7 +347,7 @@ def test_a_nameless_os_error_in_a_report_names_the_study_directory(tmp_path):
 
 def test_a_change_to_the_generated_script_is_a_cache_miss(capsys, tmp_path, monkeypatch):
     """Defect 4: a harness change that drops a line of main.edp must not reuse the old runs."""
-    from harness import run as run_module
+    from harness.run import run as run_module
 
     assert run(capsys, tmp_path, "solve", str(STUB_CASE), "--n", "4")[0] == 0
     real = run_module.main_script
@@ -357,7 +362,7 @@ def test_a_change_to_the_generated_script_is_a_cache_miss(capsys, tmp_path, monk
 
 
 def test_the_key_covers_the_input_writing_code(tmp_path):
-    assert {"harness.script", "harness.unknowns", "harness.run", "harness.freefem"} <= set(cache.code_digests())
+    assert {"harness.run.script", "harness.scene.unknowns", "harness.run.run", "harness.core.freefem"} <= set(cache.code_digests())
 
 
 def test_adding_a_material_invalidates_only_the_runs_that_use_it(tmp_path):
@@ -383,7 +388,7 @@ def test_a_truncated_state_is_rerun_with_a_warning_and_the_level_above_is_kept(c
     code, err, _ = run(capsys, tmp_path, *argv, freefem=REPO / "freefem")
     assert code == 0, err
     # The paper's S = 8.5 N/m^2 grips its barely touching branch: one Tresca line per level
-    # (harness/tresca.py), apart from the one warning of this test.
+    # (harness/run/tresca.py), apart from the one warning of this test.
     assert [line.split(":")[1] for line in err if "Tresca friction" in line] == [f" paper n={n}" for n in (2, 4, 8)]
     warnings = [line for line in err if line.startswith("warning:") and "Tresca friction" not in line]
     assert len(warnings) == 1 and "n2: state.txt does not match its checksum" in warnings[0]
@@ -517,10 +522,10 @@ def test_solve_prints_the_checks_and_a_failed_check_exits_1(capsys, tmp_path, mo
 
 
 def test_a_check_the_solver_does_not_report_is_missing_not_failed(tmp_path):
-    from harness.record import RunRecord
-    from harness.run import RunResult
-    from harness.run_checks import check_run
-    from harness.scene import load_scene
+    from harness.run.record import RunRecord
+    from harness.run.run import RunResult
+    from harness.measure.run_checks import check_run
+    from harness.scene.scene import load_scene
 
     record = RunRecord(n=2, checks={"force_imbalance": 0.0, "force_residual_bound": 1.0})
     checked = check_run(load_scene(PAPER), RunResult(2, tmp_path, record, reused=True))
@@ -548,7 +553,7 @@ def test_a_case_file_error_names_the_file(capsys, tmp_path):
 
 
 def test_every_exit_code_is_in_the_readme():
-    from harness.contract import ExitCode
+    from harness.core.contract import ExitCode
 
     readme = (REPO / "README.md").read_text()
     for code in ExitCode:
@@ -558,9 +563,9 @@ def test_every_exit_code_is_in_the_readme():
 def test_a_full_disk_names_what_was_being_written_and_other_faults_pass_through(tmp_path):
     import errno
 
-    from harness.faults import space_for
+    from harness.core.faults import space_for
 
-    from harness.errors import EnvironmentFault
+    from harness.core.errors import EnvironmentFault
 
     with pytest.raises(EnvironmentFault, match=r"^no space left on the device for the outputs of x n=2 in /r$"):
         with space_for("the outputs of x n=2", Path("/r")):
@@ -573,10 +578,10 @@ def test_a_full_disk_names_what_was_being_written_and_other_faults_pass_through(
 def test_meshing_in_this_process_leaves_the_signal_handlers_in_force(tmp_path):
     """gmsh.initialize() resets SIGTERM and SIGHUP to their defaults behind Python's back: a
     SIGTERM after the first mesh killed the harness outright, temp dirs left behind."""
-    from harness import signals
-    from harness.layout import Layout
-    from harness.mesh import build_mesh
-    from harness.scene import load_scene
+    from harness.core import signals
+    from harness.core.layout import Layout
+    from harness.mesh.mesh import build_mesh
+    from harness.scene.scene import load_scene
 
     with signals.handled():
         scene = load_scene(PAPER)
@@ -587,9 +592,9 @@ def test_meshing_in_this_process_leaves_the_signal_handlers_in_force(tmp_path):
 MESH_THEN_BROKEN_PIPE = """
 import os, sys, threading
 from pathlib import Path
-from harness.layout import Layout
-from harness.mesh import build_mesh
-from harness.scene import load_scene
+from harness.core.layout import Layout
+from harness.mesh.mesh import build_mesh
+from harness.scene.scene import load_scene
 
 scene = load_scene(Path(sys.argv[1]))
 layout = Layout(results=Path(sys.argv[2]))
@@ -653,7 +658,7 @@ def test_the_memory_guard_counts_per_solver():
 
 
 def test_an_error_before_freefem_answers_its_version_leaves_no_temp_dir_or_process(tmp_path):
-    """FreeFEM's version is asked in a thread from the start (harness/freefem.py, issue 23's
+    """FreeFEM's version is asked in a thread from the start (harness/core/freefem.py, issue 23's
     overhead): an input error found before it answers still ends with one line and exit 2,
     and the query's temp dir and FreeFEM are gone (the interpreter joins that thread). A
     FreeFEM that takes a second to answer makes sure the error comes first."""
@@ -682,9 +687,9 @@ def test_a_version_query_killed_with_an_earlier_command_is_asked_again(tmp_path,
     """An error ends every child of the command (signals.handled), the version query too when
     it has not answered yet; a later command in the same process (the tests, a notebook) asks
     again instead of keeping that failure."""
-    from harness import freefem
-    from harness.errors import RunError
-    from harness.signals import CHILDREN
+    from harness.core import freefem
+    from harness.core.errors import RunError
+    from harness.core.signals import CHILDREN
 
     marker = tmp_path / "asked"
     slow = tmp_path / "FreeFem++"

@@ -8,7 +8,7 @@ import shutil
 from pathlib import Path
 
 from harness.cli import main
-from harness.layout import REPO
+from harness.core.layout import REPO
 
 STUB = Path(__file__).parent / "data" / "stub_freefem"
 

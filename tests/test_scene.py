@@ -8,8 +8,8 @@ from pathlib import Path
 
 import pytest
 
-from harness.errors import SceneError
-from harness.scene import load_scene, parse_value
+from harness.core.errors import SceneError
+from harness.scene.scene import load_scene, parse_value
 
 
 def edited(paper_case: Path, tmp_path: Path, old: str, new: str) -> Path:
@@ -214,7 +214,7 @@ def test_inf_in_a_case_file_is_refused_naming_file_and_key(paper_case, tmp_path)
 
 def test_only_the_truncation_may_be_infinite():
     """One rule in the schema: a key takes inf only when it says what inf means."""
-    from harness.schema import SCHEMA, unbounded_keys
+    from harness.scene.schema import SCHEMA, unbounded_keys
 
     assert unbounded_keys() == ["electric_contact.L"]
     assert "no truncation" in SCHEMA["electric_contact"]["L"].unbounded

@@ -11,15 +11,15 @@ import math
 import numpy as np
 import pytest
 
-from harness import hard_cases as stress
-from harness.checks import CHECK_FLAGS, contact_nodes, contact_normal, physical_checks
-from harness.contract import Failure
-from harness.errors import RunError
-from harness.record import RunRecord, read_run_json
-from harness.run import read_record
-from harness.fields import read_fields
-from harness.layout import Layout
-from harness.scene import load_scene
+from harness.study import hard_cases as stress
+from harness.measure.checks import CHECK_FLAGS, contact_nodes, contact_normal, physical_checks
+from harness.core.contract import Failure
+from harness.core.errors import RunError
+from harness.run.record import RunRecord, read_run_json
+from harness.run.run import read_record
+from harness.measure.fields import read_fields
+from harness.core.layout import Layout
+from harness.scene.scene import load_scene
 
 CASES = sorted(stress.HARD.glob("*.toml"))
 COARSE = 8  # levels up to h = 1/8: the whole suite runs in a few seconds
@@ -247,10 +247,10 @@ def test_each_check_fails_on_a_violation_it_is_meant_to_catch(checks, flag):
 
 
 def test_the_unstructured_mesh_is_distorted_reproducible_and_passes_the_mesh_checks(tmp_path):
-    """geometry.diagonals = "unstructured" (harness/mesh.py): gmsh's Frontal-Delaunay mesh of
+    """geometry.diagonals = "unstructured" (harness/mesh/mesh.py): gmsh's Frontal-Delaunay mesh of
     size h with interior nodes shifted by up to 0.3 h; boundary roles exact, every triangle
     positive (check_mesh inside build_mesh), the same bytes on every call (seeded by n)."""
-    from harness.mesh import build_mesh
+    from harness.mesh.mesh import build_mesh
 
     scene = load_scene(stress.HARD / "unstructured.toml")
     first = build_mesh(scene.geometry, 8, tmp_path / "a")

@@ -10,11 +10,11 @@ import numpy as np
 import pandas as pd
 import pytest
 
-import harness.report
-from harness.rates import fitted_slope, pairwise_orders
-from harness.report import write_report
-from harness.scene import load_scene
-from harness.study import run_study, slopes
+import harness.report.report
+from harness.measure.rates import fitted_slope, pairwise_orders
+from harness.report.report import write_report
+from harness.scene.scene import load_scene
+from harness.study.study import run_study, slopes
 
 H = np.array([1 / 2, 1 / 4, 1 / 8, 1 / 16, 1 / 32])
 
@@ -130,7 +130,7 @@ def test_a_failing_report_leaves_the_previous_baseline_whole(stub_study, stub_la
     def broken_plot(*args):
         raise RuntimeError("disk full")
 
-    monkeypatch.setattr(harness.report, "plot_convergence", broken_plot)
+    monkeypatch.setattr(harness.report.report, "plot_convergence", broken_plot)
     with pytest.raises(RuntimeError):
         write_report(study, stub_layout)
     assert {kind: path.read_bytes() for kind, path in paths.items()} == before

@@ -15,10 +15,12 @@ from pathlib import Path
 
 import pytest
 
-from harness import atomic, cache
+from harness.core import atomic
+
+from harness.run import cache
 from harness.cli import main
-from harness.contract import ExitCode
-from harness.layout import REPO
+from harness.core.contract import ExitCode
+from harness.core.layout import REPO
 
 STUB = REPO / "tests" / "data" / "stub_freefem"
 STUB_CASE = REPO / "tests" / "data" / "paper.toml"
@@ -71,8 +73,8 @@ def test_every_study_with_a_slope_refuses_too_few_levels_before_making_anything(
 
 
 def test_a_manufactured_study_needs_two_levels_and_the_rule_is_one_table():
-    from harness.guards import Slope, check_slope_levels
-    from harness.errors import SceneError
+    from harness.core.guards import Slope, check_slope_levels
+    from harness.core.errors import SceneError
 
     check_slope_levels((4, 8), Slope.AGAINST_EXACT)
     check_slope_levels((2, 4, 8), Slope.AGAINST_FINEST)
@@ -209,7 +211,7 @@ def test_an_interrupted_crosscheck_keeps_the_earlier_crosscheck_whole(tmp_path):
     n = 4) over an earlier one (-100, real FreeFEM and the GetFEM peer) used to leave
     runs/paper/n2 from the new one and n4 and crosscheck.csv from the old. It runs in
     convergence's transaction now: every level dir and the table are the earlier ones."""
-    from harness.peer import SYSTEM_PYTHON
+    from harness.run.peer import SYSTEM_PYTHON
 
     if subprocess.run([SYSTEM_PYTHON, "-I", "-c", "import getfem"], capture_output=True, cwd="/").returncode:
         pytest.skip("GetFEM (python3-getfem) is not installed")

@@ -1,4 +1,4 @@
-"""The one study pipeline (harness/pipeline.py): every study is guarded before it meshes or
+"""The one study pipeline (harness/study/pipeline.py): every study is guarded before it meshes or
 runs anything, and its writes are all or nothing; shown on `cost` and `branches`, which
 had neither before (issue 23, item 2)."""
 
@@ -7,11 +7,11 @@ from __future__ import annotations
 
 import pytest
 
-from harness.atomic import BACKUP_PREFIX, StudyTransaction
+from harness.core.atomic import BACKUP_PREFIX, StudyTransaction
 from harness.cli import main
-from harness.contract import ExitCode
-from harness.layout import REPO
-from harness.writers import write_text
+from harness.core.contract import ExitCode
+from harness.core.layout import REPO
+from harness.core.writers import write_text
 
 STUB = REPO / "tests" / "data" / "stub_freefem"
 PAPER = REPO / "cases" / "paper.toml"
@@ -73,7 +73,7 @@ def test_a_branches_report_that_fails_half_written_leaves_the_earlier_study_whol
 
 
 def test_the_transaction_owns_every_file_of_an_output_directory(tmp_path):
-    """Written as the studies write (harness/writers.py: a new file moved over the old, which
+    """Written as the studies write (harness/core/writers.py: a new file moved over the old, which
     the backup's hard link keeps)."""
     out = tmp_path / "cost"
     out.mkdir()

@@ -1,4 +1,4 @@
-"""Longest-edge bisection of tetrahedra (harness/tet_bisection.py): conforming, nested, volume-
+"""Longest-edge bisection of tetrahedra (harness/mesh/tet_bisection.py): conforming, nested, volume-
 and role-preserving, and its quality held over repeated local refinement."""
 
 from __future__ import annotations
@@ -8,8 +8,8 @@ import itertools
 import numpy as np
 import pytest
 
-from harness import tet_bisection as tb
-from harness.simplex import boundary_facets, quality, signed_measures
+from harness.mesh import tet_bisection as tb
+from harness.mesh.simplex import boundary_facets, quality, signed_measures
 
 
 def cube(n: int = 2) -> tb.TetMesh:

@@ -1,5 +1,5 @@
 """The uniform split of tetrahedra along each octahedron's shortest diagonal
-(harness/tet_split.py): volumes, orientation, boundary labels and areas, conformity and the
+(harness/mesh/tet_split.py): volumes, orientation, boundary labels and areas, conformity and the
 diagonal chosen, on gmsh's tetrahedra of a turned box; the levels of a 3D gmsh scene keep
 their quality where gmsh's own split loses it; a curved body is still split by gmsh; a
 level below the quality floor says so in one warning line."""
@@ -13,11 +13,11 @@ import gmsh
 import numpy as np
 import pytest
 
-from harness import gmsh_mesh, tet_split
-from harness.gmsh_api import session
-from harness.mesh import build_mesh
-from harness.scene import load_scene
-from harness.simplex import (QUALITY_FLOORS, boundary_facets, cell_facets, facet_normals, label_measures, quality,
+from harness.mesh import gmsh_mesh, tet_split
+from harness.core.gmsh_api import session
+from harness.mesh.mesh import build_mesh
+from harness.scene.scene import load_scene
+from harness.mesh.simplex import (QUALITY_FLOORS, boundary_facets, cell_facets, facet_normals, label_measures, quality,
                              quality_warning, signed_measures)
 from physics_runs import CASES
 

@@ -1,17 +1,17 @@
-"""The per-field FreeFEM code comes from one table (harness/unknowns.py)."""
+"""The per-field FreeFEM code comes from one table (harness/scene/unknowns.py)."""
 
 from __future__ import annotations
 
 import pytest
 
-from harness.script import hand_script, hand_script_path
-from harness.unknowns import Unknowns
+from harness.run.script import hand_script, hand_script_path
+from harness.scene.unknowns import Unknowns
 
 FULL = ("piezoelectric", "thermal", "pyroelectric", "contact", "friction", "electric_contact", "thermal_contact")
 
 
 def test_committed_solve_edp_is_generated():
-    # Regenerate with `python -m harness.script` after editing harness/unknowns.py or script.py.
+    # Regenerate with `python -m harness.run.script` after editing harness/scene/unknowns.py or script.py.
     assert hand_script_path().read_text() == hand_script()
 
 

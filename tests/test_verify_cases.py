@@ -10,8 +10,8 @@ import pandas as pd
 import pytest
 
 from harness.cli import main
-from harness.contract import ExitCode
-from harness.layout import REPO
+from harness.core.contract import ExitCode
+from harness.core.layout import REPO
 
 BULK = REPO / "cases" / "mms" / "bulk.toml"
 

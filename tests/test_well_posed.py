@@ -1,6 +1,6 @@
 """A scene whose data cannot fix u (a rigid motion), phi or theta (a constant) is refused when
 it loads, with one line and exit code 2, by one rule for the rectangle, the box and gmsh
-scenes (harness/well_posed.py). Before the rule only gmsh scenes were checked: a rectangle
+scenes (harness/scene/well_posed.py). Before the rule only gmsh scenes were checked: a rectangle
 with both ends free ran into Newton's maximum (exit 3), the box into a Krylov stall."""
 
 from __future__ import annotations
@@ -10,9 +10,9 @@ from pathlib import Path
 import pytest
 
 from harness.cli import main
-from harness.contract import ExitCode
-from harness.errors import SceneError
-from harness.scene import load_scene
+from harness.core.contract import ExitCode
+from harness.core.errors import SceneError
+from harness.scene.scene import load_scene
 
 ROOT = Path(__file__).parents[1]
 PAPER = ROOT / "cases" / "paper.toml"

@@ -21,16 +21,16 @@ from pathlib import Path
 
 import pandas as pd
 
-from harness.adapt import Adaptation, adapt, check_adaptable, errors_against, uniform_runs
+from harness.study.adapt import Adaptation, adapt, check_adaptable, errors_against, uniform_runs
 from harness.arguments import add_case, add_common, positive_int
-from harness.engine import quiet
-from harness.fields import read_fields
-from harness.layout import Layout
-from harness.norm_table import FIELD_NAMES, error_label
-from harness.pipeline import Guarded, Plan, run_pipeline, scene_of
-from harness.rates import slope_fit
-from harness.run import check_solver_files
-from harness.writers import PRECISE_CSV_FORMAT, write_csv, write_json
+from harness.study.engine import quiet
+from harness.measure.fields import read_fields
+from harness.core.layout import Layout
+from harness.measure.norm_table import FIELD_NAMES, error_label
+from harness.study.pipeline import Guarded, Plan, run_pipeline, scene_of
+from harness.measure.rates import slope_fit
+from harness.run.run import check_solver_files
+from harness.core.writers import PRECISE_CSV_FORMAT, write_csv, write_json
 
 
 def bulk_fraction(text: str) -> float:

@@ -44,18 +44,18 @@ from typing import Any, Callable, Sequence
 
 import pandas as pd
 
-from harness import freefem
+from harness.core import freefem
 from harness.arguments import add_case, add_levels, add_memory_override, add_results, name_list, positive_int
-from harness.engine import freefem_startup_s, quiet, run_levels, runs_of, timed_meshes
-from harness.errors import HarnessError
-from harness.layout import REPO, Layout
-from harness.record import read_run_json
-from harness.run import WarmStart, run_level
-from harness.scene import Scene, load_scene
-from harness.schema import LINEAR_SOLVERS
-from harness.study import run_study
-from harness.pipeline import Guarded, Plan, run_pipeline
-from harness.writers import markdown_table, write_csv, write_json, write_text
+from harness.study.engine import freefem_startup_s, quiet, run_levels, runs_of, timed_meshes
+from harness.core.errors import HarnessError
+from harness.core.layout import REPO, Layout
+from harness.run.record import read_run_json
+from harness.run.run import WarmStart, run_level
+from harness.scene.scene import Scene, load_scene
+from harness.scene.schema import LINEAR_SOLVERS
+from harness.study.study import run_study
+from harness.study.pipeline import Guarded, Plan, run_pipeline
+from harness.core.writers import markdown_table, write_csv, write_json, write_text
 
 GETFEM_FINEST_S = 11.6  # issue 5: GetFEM + SuperLU, 5 Newton iterations, h = 1/64
 SOLVER_KEYS = ("wall_s", "first_factorisation_s", "solve_s", "newton_s", "gmres_iterations", "peak_rss_mb")

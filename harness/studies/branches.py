@@ -17,7 +17,7 @@ solutions from different starts. Each start below is a convergence study of the 
 For each: the finest level's max theta, phi range, max |u|, contact force, heat and charge
 entering through Gamma_3 and the active length, the Newton iterations per level, the
 least-squares slope of each field's error against the finest level, and the stress suite's
-physical checks (harness/checks.py) on every level. A start that fails on
+physical checks (harness/measure/checks.py) on every level. A start that fails on
 some level is reported with the level and the reason, not left out.
 Writes branches.csv, branches.md, and each study's convergence.csv / summary.json /
 convergence.png under results/branches/<start>/. Exit status 1 when a start converged but
@@ -33,13 +33,13 @@ from typing import Any
 import pandas as pd
 
 from harness.arguments import add_case, add_cluster, add_common, add_jobs, add_levels, layout_of, name_list
-from harness.branch_starts import LEVELS, PAPER, STARTS, branch_row, same_branch, start_scene
-from harness.errors import SceneError
-from harness.executor import cluster, each
-from harness.layout import results_root
-from harness.norm_table import error_names
-from harness.pipeline import Guarded, Plan, run_pipeline
-from harness.writers import cell, markdown_table, write_csv, write_text
+from harness.report.branch_starts import LEVELS, PAPER, STARTS, branch_row, same_branch, start_scene
+from harness.core.errors import SceneError
+from harness.study.executor import cluster, each
+from harness.core.layout import results_root
+from harness.measure.norm_table import error_names
+from harness.study.pipeline import Guarded, Plan, run_pipeline
+from harness.core.writers import cell, markdown_table, write_csv, write_text
 
 
 

@@ -6,13 +6,13 @@ from __future__ import annotations
 import argparse
 
 from harness.arguments import add_case, add_common, add_effects, add_jobs, add_levels, layout_of
-from harness.guards import Slope
-from harness.layout import Layout
-from harness.pipeline import Guarded, Plan, run_pipeline, scene_of
-from harness.report import format_table, write_report
-from harness.run_checks import failed_checks, print_checks
-from harness.scene import Scene
-from harness.study import Study, run_study
+from harness.core.guards import Slope
+from harness.core.layout import Layout
+from harness.study.pipeline import Guarded, Plan, run_pipeline, scene_of
+from harness.report.report import format_table, write_report
+from harness.measure.run_checks import failed_checks, print_checks
+from harness.scene.scene import Scene
+from harness.study.study import Study, run_study
 
 
 def add_arguments(parser: argparse.ArgumentParser) -> None:
@@ -49,7 +49,7 @@ def convergence(scene: Scene, levels: tuple[int, ...], layout: Layout, jobs: int
 
 
 def verdict(study: Study) -> str | None:
-    """The slope's band first, then every level's physical checks (harness/run_checks.py)."""
+    """The slope's band first, then every level's physical checks (harness/measure/run_checks.py)."""
     scene = study.scene
     failed = failed_checks(print_checks(scene, [study.runs[n] for n in sorted(study.runs)], study.solutions))
     low, high = scene.slope_band

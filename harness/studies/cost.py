@@ -31,14 +31,14 @@ from __future__ import annotations
 import argparse
 
 from harness.arguments import add_case, add_common, add_levels, level_list, name_list
-from harness.errors import SceneError
-from harness.frontier import (DISCRETISATIONS, CostStudy, frontier_markdown, planned_scenes, run_cost, scene_names,
+from harness.core.errors import SceneError
+from harness.report.frontier import (DISCRETISATIONS, CostStudy, frontier_markdown, planned_scenes, run_cost, scene_names,
                               write_outputs)
-from harness.layout import Layout
-from harness.norm_table import FIELD_NAMES, error_column
-from harness.pipeline import Guarded, Plan, run_pipeline
-from harness.scene import load_scene
-from harness.segments import Geometry
+from harness.core.layout import Layout
+from harness.measure.norm_table import FIELD_NAMES, error_column
+from harness.study.pipeline import Guarded, Plan, run_pipeline
+from harness.scene.scene import load_scene
+from harness.scene.segments import Geometry
 
 
 

@@ -15,18 +15,18 @@ from pathlib import Path
 import pandas as pd
 
 from harness.arguments import add_common, name_list, positive_int, study_levels
-from harness.crosscheck import TOLERANCE, differences, integral_differences
-from harness.engine import InlineMeshes, quiet, run_levels, runs_of
-from harness.errors import Disagreement, FieldsError, RunError, SceneError
-from harness.fields import Fields, read_fields
-from harness.floating import floating_macros
-from harness.layout import Layout
-from harness.pipeline import Guarded, Plan, run_pipeline
-from harness.norm_table import MEASURE
-from harness.materials import values as material_values
-from harness.peer import pressed_depth, problem, require_getfem, run_peer
-from harness.record import RunRecord
-from harness.scene import Scene, load_scene
+from harness.measure.crosscheck import TOLERANCE, differences, integral_differences
+from harness.study.engine import InlineMeshes, quiet, run_levels, runs_of
+from harness.core.errors import Disagreement, FieldsError, RunError, SceneError
+from harness.measure.fields import Fields, read_fields
+from harness.scene.floating import floating_macros
+from harness.core.layout import Layout
+from harness.study.pipeline import Guarded, Plan, run_pipeline
+from harness.measure.norm_table import MEASURE
+from harness.scene.materials import values as material_values
+from harness.run.peer import pressed_depth, problem, require_getfem, run_peer
+from harness.run.record import RunRecord
+from harness.scene.scene import Scene, load_scene
 
 # The coarse levels a cross-check takes by default: enough to see round-off, seconds each.
 COARSE = {2: (2, 4, 8), 3: (2, 4)}
@@ -64,7 +64,7 @@ def run(args: argparse.Namespace) -> int:
     plans = [plan for case in args.cases for plan in plans_of(case, args.overrides, args.branches, args.levels)]
     require_getfem()
     out = args.out or args.results / "crosscheck"
-    # The one study pipeline (harness/pipeline.py): its runs, table and figures all new or
+    # The one study pipeline (harness/study/pipeline.py): its runs, table and figures all new or
     # all the earlier ones, and no other study writing them meanwhile.
     plan = Plan(args.results, tuple(Guarded(scene, levels) for scene, _, levels in plans),
                 scene_dirs=tuple(dict.fromkeys(layout.case_dir(scene.name) for scene, _, _ in plans)),
@@ -115,9 +115,9 @@ def plans_of(case: Path, overrides: list[str], branches: list[str] | None,
         raise SceneError(f"{case}: the GetFEM peer solves Tresca friction only, not contact.friction_law = {law!r}")
     if floating_macros(base.geometry):  # the peer has no floating electrode: unsupported, not a disagreement
         raise SceneError(f"{case}: the GetFEM peer has no floating electrode (a part with the role 'floating')")
-    if base.regions:  # the peer takes one material file (harness/peer.py)
+    if base.regions:  # the peer takes one material file (harness/run/peer.py)
         raise SceneError(f"{case}: the GetFEM peer solves one material, not the regions of [scene.materials]")
-    if not base.poling.is_default:  # the peer reads the material file's tensors as they are (harness/peer.py)
+    if not base.poling.is_default:  # the peer reads the material file's tensors as they are (harness/run/peer.py)
         raise SceneError(f"{case}: the GetFEM peer solves the default poling axis only, not scene.poling_axis = "
                          f"{base.sections.scene.poling_axis!r}")
     own = base.sections.scene.coarsest_guess if base.initial_guess == "coarser" else base.initial_guess
@@ -148,7 +148,7 @@ def compare(scene: Scene, start: str, levels: tuple[int, ...], layout: Layout, f
         fields = read_fields(ours.directory / "solution.vtu")
         diffs, _ = differences(fields, peer.record, scene.fields, ours.record.scales or {})
         if figures is not None and n == max(levels):
-            from harness.peer_figures import render
+            from harness.report.peer_figures import render
 
             render(fields, peer.record, material, scene.fields, f"{scene.name}, {start} start, h = 1/{n}: "
                    "FreeFEM, GetFEM and their difference", figures / f"{scene.name}_n{n}.png")

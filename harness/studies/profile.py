@@ -23,13 +23,13 @@ from typing import Any
 import pandas as pd
 
 from harness.arguments import add_memory_override, positive_int
-from harness.engine import quiet, run_levels, runs_of, timed_meshes
-from harness.layout import REPO, Layout
-from harness.pipeline import Guarded, Plan, run_pipeline
-from harness.record import RunRecord
-from harness.run import run_level
-from harness.scene import load_scene
-from harness.writers import markdown_table, write_csv, write_text
+from harness.study.engine import quiet, run_levels, runs_of, timed_meshes
+from harness.core.layout import REPO, Layout
+from harness.study.pipeline import Guarded, Plan, run_pipeline
+from harness.run.record import RunRecord
+from harness.run.run import run_level
+from harness.scene.scene import load_scene
+from harness.core.writers import markdown_table, write_csv, write_text
 
 DEFAULT_CASE = REPO / "cases" / "paper3d.toml"
 DEFAULT_OUT = Path("results") / "solvers" / "profile3d.csv"

@@ -19,12 +19,12 @@ from pathlib import Path
 import pandas as pd
 
 from harness.arguments import add_memory_override, add_results, level_list, name_list
-from harness.hard_cases import case_files
-from harness.layout import REPO, Layout
-from harness.pipeline import Guarded, Plan, run_pipeline
-from harness.scale_out import chain_levels, mpi_table, stress_table
-from harness.scene import load_scene
-from harness.writers import markdown_table, write_text
+from harness.study.hard_cases import case_files
+from harness.core.layout import REPO, Layout
+from harness.study.pipeline import Guarded, Plan, run_pipeline
+from harness.study.scale_out import chain_levels, mpi_table, stress_table
+from harness.scene.scene import load_scene
+from harness.core.writers import markdown_table, write_text
 
 CASES = REPO / "cases"
 

@@ -15,15 +15,15 @@ from typing import Any
 import pandas as pd
 
 from harness.arguments import add_cluster, add_common, add_levels, layout_of
-from harness.executor import cluster, each
-from harness.guards import Slope
-from harness.layout import REPO, Layout
-from harness.pipeline import Guarded, Plan, run_pipeline
-from harness.report import write_report
-from harness.scene import Scene, load_scene
-from harness.norm_table import FIELD_NAMES, TOTAL
-from harness.study import Study, run_study
-from harness.writers import write_csv
+from harness.study.executor import cluster, each
+from harness.core.guards import Slope
+from harness.core.layout import REPO, Layout
+from harness.study.pipeline import Guarded, Plan, run_pipeline
+from harness.report.report import write_report
+from harness.scene.scene import Scene, load_scene
+from harness.measure.norm_table import FIELD_NAMES, TOTAL
+from harness.study.study import Study, run_study
+from harness.core.writers import write_csv
 
 
 def scene_row(study: Study) -> dict[str, Any]:

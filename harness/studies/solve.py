@@ -9,15 +9,15 @@ from pathlib import Path
 from typing import Any
 
 from harness.arguments import add_case, add_common, add_effects, layout_of, positive_int
-from harness.cell_size import thin_warnings
-from harness.engine import InlineMeshes, quiet, run_levels, runs_of
-from harness.fields import Fields, read_fields
-from harness.layout import Layout
-from harness.pipeline import Guarded, Plan, run_pipeline, scene_of
-from harness.record import RunRecord
-from harness.run import RunResult, check_solver_files
-from harness.run_checks import failed_checks, print_checks
-from harness.scene import Scene
+from harness.scene.cell_size import thin_warnings
+from harness.study.engine import InlineMeshes, quiet, run_levels, runs_of
+from harness.measure.fields import Fields, read_fields
+from harness.core.layout import Layout
+from harness.study.pipeline import Guarded, Plan, run_pipeline, scene_of
+from harness.run.record import RunRecord
+from harness.run.run import RunResult, check_solver_files
+from harness.measure.run_checks import failed_checks, print_checks
+from harness.scene.scene import Scene
 
 
 def add_arguments(parser: argparse.ArgumentParser) -> None:
@@ -36,7 +36,7 @@ def run(args: argparse.Namespace) -> int:
 
 
 def solve(scene: Scene, n: int, layout: Layout, force: bool, ignore_memory: bool = False) -> RunResult:
-    """One level; it writes its level dir alone (swapped in whole, harness/run.py), so the
+    """One level; it writes its level dir alone (swapped in whole, harness/run/run.py), so the
     pipeline's transaction owns nothing; it locks the scene's directory, which a study of
     the same scene would otherwise change under it."""
     plan = Plan(layout.results, (Guarded(scene, (n,)),), locked=(layout.case_dir(scene.name),),

@@ -32,16 +32,16 @@ from typing import Any, Callable
 import pandas as pd
 
 from harness.arguments import add_memory_override, add_results, name_list, positive_int
-from harness.engine import quiet, run_levels, runs_of, timed_meshes
-from harness.errors import RunError
-from harness.layout import REPO, Layout
-from harness.petsc_plugin import MULTIGRID, MUMPS_LU, field_split_options
-from harness.plot import plot_rank_iterations
-from harness.pipeline import Guarded, Plan, run_pipeline
-from harness.run import run_level
-from harness.scene import Scene, load_scene
-from harness.unknowns import Unknowns
-from harness.writers import markdown_table, write_csv, write_text
+from harness.study.engine import quiet, run_levels, runs_of, timed_meshes
+from harness.core.errors import RunError
+from harness.core.layout import REPO, Layout
+from harness.scene.petsc_options import MULTIGRID, MUMPS_LU, field_split_options
+from harness.report.plot import plot_rank_iterations
+from harness.study.pipeline import Guarded, Plan, run_pipeline
+from harness.run.run import run_level
+from harness.scene.scene import Scene, load_scene
+from harness.scene.unknowns import Unknowns
+from harness.core.writers import markdown_table, write_csv, write_text
 
 CASES = REPO / "cases"
 # Each solver: run.linear_solver and, for PETSc, run.petsc_options of the scene's Newton fields.
@@ -53,7 +53,7 @@ SOLVERS: dict[str, tuple[str, Callable[[tuple[str, ...]], str]]] = {
     "petsc-mumps-blr": ("petsc", lambda fields: MUMPS_LU + " -mat_mumps_icntl_35 2 -mat_mumps_cntl_7 1e-8"),
     "petsc-mg": ("petsc", lambda fields: MULTIGRID),
 }
-COARSE_SPACES = ("none", "nested")  # run.coarse_space (harness/schema.py)
+COARSE_SPACES = ("none", "nested")  # run.coarse_space (harness/scene/schema.py)
 KEYS = ("wall_s", "bulk_assembly_s", "factorisation_s", "solve_s", "newton_s", "peak_rss_mb")
 
 

@@ -3,17 +3,17 @@
 Every case file in cases/hard/ is the paper's scene with one thing made hard; its [expect]
 section says what (`hard_because`), what the case must show (`requirement`), the outcome
 expected (`status`: converged, or known_failure with its `failure` and `why`) and the
-tolerance of its test, with why (harness/schema.py). Each case runs its levels as a chain (each level from
+tolerance of its test, with why (harness/scene/schema.py). Each case runs its levels as a chain (each level from
 the one below, as `make convergence` does; the coarsest from the case's `coarsest_guess`)
 and is reported at its finest level, or at the level where it failed:
 
 - status: `converged`, or the classified reason of the failure (`diverged`, `max_iterations`,
   `nan` from FreeFEM's exit code and run.json; `timeout` when the harness killed it;
-  `freefem_error` for anything else; harness/contract.py's Failure), or `known_failure`
+  `freefem_error` for anything else; harness/core/contract.py's Failure), or `known_failure`
   for a case whose [expect] says so and that failed with the reason it names;
 - Newton's work: iterations (per level too), final relative residual per field, damped
   steps, active-set changes, wall time;
-- the physical checks of every converged run (`physical_checks`, tolerances in harness/checks.py).
+- the physical checks of every converged run (`physical_checks`, tolerances in harness/measure/checks.py).
 
 Writes summary.csv (one row per case), summary.md (the same, short) and
 paper_iterations.csv: Newton iterations per level of the paper's scene with each level
@@ -30,15 +30,15 @@ import time
 import pandas as pd
 
 from harness.arguments import add_cluster, add_common, add_levels, layout_of, level_list, name_list
-from harness.checks import CHECK_FLAGS
-from harness.executor import cluster, each
-from harness.freefem import freefem_version
-from harness.hard_cases import (PAPER_LEVELS, PAPER_STARTS, case_cost, case_files, paper_iterations, paper_scene,
+from harness.measure.checks import CHECK_FLAGS
+from harness.study.executor import cluster, each
+from harness.core.freefem import freefem_version
+from harness.study.hard_cases import (PAPER_LEVELS, PAPER_STARTS, case_cost, case_files, paper_iterations, paper_scene,
                                 passed, summary_row, timed_case)
-from harness.norm_table import FIELD_NAMES
-from harness.pipeline import Guarded, Plan, run_pipeline
-from harness.scene import load_scene
-from harness.writers import cell, markdown_table, write_csv, write_text
+from harness.measure.norm_table import FIELD_NAMES
+from harness.study.pipeline import Guarded, Plan, run_pipeline
+from harness.scene.scene import load_scene
+from harness.core.writers import cell, markdown_table, write_csv, write_text
 
 # ---- output ------------------------------------------------------------------------------
 

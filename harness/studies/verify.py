@@ -1,13 +1,13 @@
 """`python -m harness verify`: verification beyond self-convergence, into
 results/verification/.
 
-- Manufactured solutions (cases/mms/*.toml, harness/mms.py): true errors against the exact
+- Manufactured solutions (cases/mms/*.toml, harness/scene/mms.py): true errors against the exact
   fields, per case, field and norm, with least-squares slopes and standard errors
   (mms_levels.csv, mms.csv, mms.png). Expected: 2 in L2, 1 in the H1 seminorm. Beside
   them the a posteriori estimate of each field's error and its effectivity index
   (effectivity.csv; docs/adaptivity.md).
 - The paper's scene without a reference: three-grid observed order, Richardson value and
-  GCI (harness/gci.py) of each field's error norm and of scalar outputs of run.json
+  GCI (harness/measure/gci.py) of each field's error norm and of scalar outputs of run.json
   (results/paper/gci.csv; its finest triples again in gci.csv here).
 """
 
@@ -21,17 +21,17 @@ from typing import Sequence
 import pandas as pd
 
 from harness.arguments import add_common, add_jobs, add_levels, layout_of, name_list
-from harness.errors import SceneError
-from harness.guards import Slope
-from harness.gci import finest_triples, gci_table
-from harness.layout import REPO, Layout
-from harness.pipeline import Guarded, Plan, run_pipeline
-from harness.plot import plot_mms
-from harness.scene import Scene, load_scene
-from harness.study import run_study
-from harness.verification import (CASE_LEVELS, MMS_CASES, MMS_CASES_3D, MMS_LEVELS, MMS_LEVELS_3D, band,
+from harness.core.errors import SceneError
+from harness.core.guards import Slope
+from harness.measure.gci import finest_triples, gci_table
+from harness.core.layout import REPO, Layout
+from harness.study.pipeline import Guarded, Plan, run_pipeline
+from harness.report.plot import plot_mms
+from harness.scene.scene import Scene, load_scene
+from harness.study.study import run_study
+from harness.study.verification import (CASE_LEVELS, MMS_CASES, MMS_CASES_3D, MMS_LEVELS, MMS_LEVELS_3D, band,
                                   effectivity_table, error_table, mms_rates, mms_runs)
-from harness.writers import PRECISE_CSV_FORMAT, write_csv as write_table
+from harness.core.writers import PRECISE_CSV_FORMAT, write_csv as write_table
 
 
 def write_csv(table: pd.DataFrame, path: Path) -> None:

@@ -1,0 +1,54 @@
+"""Where things live: the repository's solver scripts and the results tree of a case."""
+
+from __future__ import annotations
+
+from dataclasses import dataclass, field
+from pathlib import Path
+
+REPO = Path(__file__).resolve().parents[2]
+
+
+
+def is_material_path(material: str) -> bool:
+    """`scene.material` names a file (it has a folder or the .idp suffix), not a library name."""
+    return "/" in material or material.endswith(".idp")
+
+def results_root() -> Path:
+    """`./results` under the working directory: a study writes where its user stands, not
+    into the checkout the harness was installed from (the Makefile runs from the checkout's
+    root, so its targets still write into the checkout's results/)."""
+    return Path.cwd() / "results"
+
+
+@dataclass(frozen=True)
+class Layout:
+    """results/<case>/{meshes/mesh_n<N>.msh, n<N>/, n<N>.failed/, convergence.*, summary.json}."""
+
+    results: Path = field(default_factory=results_root)
+    freefem: Path = REPO / "freefem"
+
+    def case_dir(self, case: str) -> Path:
+        return self.results / case
+
+    def meshes_dir(self, case: str) -> Path:
+        return self.case_dir(case) / "meshes"
+
+    def level_dir(self, case: str, n: int) -> Path:
+        return self.case_dir(case) / f"n{n}"
+
+    def failed_dir(self, case: str, n: int) -> Path:
+        return self.case_dir(case) / f"n{n}.failed"
+
+    def material_library(self) -> Path:
+        return self.freefem / "materials"
+
+    def material_file(self, material: str) -> Path:
+        """A library name's file in freefem/materials/, or the path a scene gave."""
+        return Path(material) if is_material_path(material) else self.material_library() / f"{material}.idp"
+
+    def material_reduction_file(self) -> Path:
+        """Derives the plane-strain constants the scheme uses from a material's 3D set."""
+        return self.freefem / "material.idp"
+
+    def scheme_file(self) -> Path:
+        return self.freefem / "scheme.idp"

@@ -1,0 +1,50 @@
+"""Floating electrodes (roles `floating`, `floating_2`, `floating_3`): which a scene has, the
+FreeFEM switch of freefem/floating.idp, and the scenes it cannot run in (docs/model.md,
+"Floating electrodes")."""
+
+from __future__ import annotations
+
+from typing import Any
+
+from harness.core.contract import FLOATING_CHARGES, FLOATING_ROLES
+from harness.core.errors import SceneError
+
+
+def roles_of(geometry: Any) -> set[str]:
+    """The boundary roles a geometry of any kind (rectangle, box, gmsh) gives its parts."""
+    if hasattr(geometry, "role_of_name"):
+        return set(geometry.role_of_name.values())
+    if hasattr(geometry, "role_areas"):
+        return set(geometry.role_areas())
+    return set(geometry.role_lengths())
+
+
+def floating_roles(geometry: Any) -> tuple[str, ...]:
+    """The scene's floating electrodes, in the order run.json reports them."""
+    present = roles_of(geometry)
+    return tuple(role for role in FLOATING_ROLES if role in present)
+
+
+def check_floating(table: dict[str, dict[str, Any]], geometry: Any) -> None:
+    """A floating electrode needs the potential and the sequential direct solve (its exact
+    elimination is written for one rank's matrices); a charge needs its electrode."""
+    roles = floating_roles(geometry)
+    for role, key in FLOATING_CHARGES.items():
+        charge = table["loads"].get(key, 0.0)  # absent: the potential is off
+        if role not in roles and charge != 0:
+            raise SceneError(f"loads.{key} = {charge!r}: no boundary part has the role {role!r}")
+    if not roles:
+        return
+    if "piezoelectric" not in table["scene"]["effects"]:
+        raise SceneError(f"geometry: the role {roles[0]!r} needs the effect 'piezoelectric' (the electric potential)")
+    if any(str(v).strip() for v in table.get("manufactured", {}).values()):
+        raise SceneError(f"geometry: the role {roles[0]!r} has no manufactured solution (its charge is a load of its own)")
+    run = table["run"]
+    if run["linear_solver"] == "petsc" or run["ranks"] > 1:
+        raise SceneError(f"run.linear_solver = {run['linear_solver']!r}, run.ranks = {run['ranks']}: a floating "
+                         "electrode is solved on one rank with a direct solver (mumps, umfpack, umfpack64)")
+
+
+def floating_macros(geometry: Any) -> dict[str, str]:
+    """FLOATING switches on freefem/floating.idp when a part has a floating role."""
+    return {"FLOATING": "1"} if floating_roles(geometry) else {}

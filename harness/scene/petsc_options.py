@@ -1,0 +1,61 @@
+"""PETSc's options as a scene chooses them (`run.petsc_options`): the measured defaults, and
+what the options ask for that the scene must provide (coarser meshes for a geometric
+multigrid) or that the memory guard must count (a factorisation). Read by the scene, the
+plugin (harness/run/petsc_plugin.py) and the solver study; no PETSc is needed to read them.
+"""
+
+from __future__ import annotations
+
+
+# MUMPS's LU through PETSc, kept as GMRES's preconditioner across Newton steps while it
+# serves (freefem/petsc_linear_solver.idp), as MUMPS_seq is; -mat_mumps_icntl_35 2 adds
+# block low-rank compression, -mat_mumps_icntl_22 1 puts the factors out of core.
+MUMPS_LU = "-ksp_type gmres -pc_type lu -pc_factor_mat_solver_type mumps"
+
+
+def field_split_options(fields: tuple[str, ...]) -> str:
+    """GMRES preconditioned by one block Gauss-Seidel sweep over the fields in order, each
+    block by one BoomerAMG V-cycle (one field: BoomerAMG alone)."""
+    if len(fields) == 1:
+        return "-ksp_type gmres -pc_type hypre"
+    blocks = " ".join(f"-fieldsplit_{f}_ksp_type preonly -fieldsplit_{f}_pc_type hypre" for f in fields)
+    return f"-ksp_type gmres -pc_type fieldsplit -pc_fieldsplit_type multiplicative {blocks}"
+
+
+# GMRES (flexible: the smoothers are Krylov methods) preconditioned by one V-cycle of
+# geometric multigrid over the scene's nested meshes (run.multigrid_levels coarser ones),
+# the levels' operators Galerkin products of the Newton tangent; on each level but the
+# coarsest three GMRES iterations with ILU(0) as the smoother, MUMPS's LU on the coarsest.
+# Chosen by measurement (docs/solvers.md): 3D h = 1/32 in 4 Newton steps of 3-10 Krylov
+# iterations each, in 4.1 GB where a factorisation needs ~35.
+MULTIGRID = ("-ksp_type fgmres -pc_type mg -mg_levels_ksp_type gmres -mg_levels_ksp_max_it 3 "
+             "-mg_levels_pc_type ilu -mg_coarse_pc_type lu -mg_coarse_pc_factor_mat_solver_type mumps")
+
+
+def option_pairs(options: str) -> list[tuple[str, str]]:
+    words = options.split()
+    return list(zip(words, words[1:]))
+
+
+def multigrid(options: str) -> bool:
+    """Whether PETSc's options ask for geometric multigrid (-pc_type mg, on the Newton
+    system or one of its blocks): the run then needs the coarser meshes."""
+    return any(a.endswith("pc_type") and b == "mg" for a, b in option_pairs(options))
+
+
+def factorising(options: str) -> bool:
+    """Whether PETSc's options factorise the matrix or a block of it (any -..._pc_type lu or
+    cholesky: for the memory guard, a block's factor counts as the whole's, erring high). A
+    multigrid's coarse solve (-mg_...) factorises only the coarsest level: not counted."""
+    return any(a.endswith("pc_type") and b in ("lu", "cholesky") and not a.startswith("-mg_")
+               for a, b in option_pairs(options))
+
+
+def default_options(dimension: int, fields: tuple[str, ...]) -> str:
+    """run.petsc_options when blank, chosen by measurement (docs/solvers.md, results/solvers/):
+    geometric multigrid in 3D, MUMPS's LU in 2D. The field split with AMG needs 30-300
+    Krylov iterations a Newton step once the electric contact conductance couples u_nu to
+    phi with its gain k_e/eps_e; multigrid on the whole coupled system, its coarse levels
+    Galerkin products of the tangent, sees that coupling on every level. `fields` is the
+    seam for choices of their own."""
+    return MULTIGRID if dimension == 3 else MUMPS_LU
