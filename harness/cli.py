@@ -20,7 +20,7 @@ from harness.core.faults import guarded, report
 # Subcommand -> its one-line help (the module's own docstring says the rest), grouped by the
 # task each serves (the top-level help lists them so).
 TASKS: dict[str, tuple[str, ...]] = {
-    "your own part (a case file of yours)": ("solve", "convergence", "adapt"),
+    "your own part (a case file of yours)": ("solve", "convergence", "adapt", "plot"),
     "checking the scheme": ("verify", "scenes", "stress", "branches", "crosscheck"),
     "what it costs and how far it scales": ("cost", "bench", "solvers", "profile", "scale"),
 }
@@ -32,6 +32,7 @@ STUDIES: dict[str, str] = {
     "branches": "the solution branches of the paper's scene from four starts",
     "verify": "true errors against exact (manufactured) solutions, and the Grid Convergence Index",
     "adapt": "adaptive refinement from the error estimate (2D and 3D): error against unknowns, beside uniform",
+    "plot": "a picture of one run's fields, 2D or 3D: a device on its deformed mesh, or a 3D section",
     "cost": "what accuracy costs: the cost-accuracy frontier of a scene",
     "bench": "repeated timings (finest level, sweep, whole process), medians and spread",
     "solvers": "the solver table: every linear solver on the same levels, medians",

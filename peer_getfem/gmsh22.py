@@ -14,6 +14,9 @@ import numpy as np
 
 # gmsh element type -> number of nodes, for the types the harness writes.
 NODES_OF_TYPE = {1: 2, 2: 3, 4: 4, 15: 1}
+# The GetFEM region of the cells whose physical tag is t (a material region's label, 1, 2, ...,
+# harness/gmsh_mesh.py) is CELL_REGION + t: clear of the boundary labels (1 ... 12).
+CELL_REGION = 100
 
 
 class MeshFileError(ValueError):
@@ -26,6 +29,7 @@ class MshMesh:
     cells: np.ndarray  # (M, dim + 1) node indices (0-based) of the body's simplices
     faces: np.ndarray  # (F, dim) node indices of labelled boundary facets
     labels: np.ndarray  # (F,) their role labels
+    cell_labels: np.ndarray  # (M,) the cells' physical tags: their material region's label
 
 
 def read_msh(path: Path, dimension: int) -> MshMesh:
@@ -54,7 +58,7 @@ def parse(lines: list[str], dimension: int) -> MshMesh:
     ids = table[:, 0].astype(int)
     index = np.full(ids.max() + 1, -1)
     index[ids] = np.arange(count)
-    cells, faces, labels = [], [], []
+    cells, cell_labels, faces, labels = [], [], [], []
     body_type, face_type = (2, 1) if dimension == 2 else (4, 2)
     elements = section(lines, "Elements")
     for row in elements[1:int(elements[0]) + 1]:
@@ -63,22 +67,26 @@ def parse(lines: list[str], dimension: int) -> MshMesh:
         vertices = index[words[3 + ntags:3 + ntags + NODES_OF_TYPE[kind]]]
         if kind == body_type:
             cells.append(vertices)
+            cell_labels.append(words[3])
         elif kind == face_type:
             faces.append(vertices)
             labels.append(words[3])
     if not cells:
         raise ValueError(f"no {'triangles' if dimension == 2 else 'tetrahedra'}")
-    return MshMesh(table[:, 1:4], np.array(cells), np.array(faces).reshape(-1, dimension), np.array(labels, dtype=int))
+    return MshMesh(table[:, 1:4], np.array(cells), np.array(faces).reshape(-1, dimension), np.array(labels, dtype=int),
+                   np.array(cell_labels, dtype=int))
 
 
 def getfem_mesh(gf, msh: MshMesh, dimension: int):  # noqa: ANN001, ANN201 (GetFEM objects)
     """The GetFEM mesh of `msh`, with region <label> holding the (convex, face) pairs of
-    every boundary facet of that label."""
+    every boundary facet of that label, and region CELL_REGION + t the cells tagged t."""
     points = msh.points[:, :dimension]
     mesh = gf.Mesh("empty", dimension)
     kind = "GT_PK(2,1)" if dimension == 2 else "GT_PK(3,1)"
     # add_convex takes coordinates: (dim, nodes per cell, cells).
-    mesh.add_convex(gf.GeoTrans(kind), np.transpose(points[msh.cells], (2, 1, 0)))
+    ids = np.asarray(mesh.add_convex(gf.GeoTrans(kind), np.transpose(points[msh.cells], (2, 1, 0))), dtype=int)
+    for tag in np.unique(msh.cell_labels):
+        mesh.set_region(CELL_REGION + int(tag), ids[msh.cell_labels == tag].reshape(1, -1))
     pid = np.asarray(mesh.pid_from_coords(points.T), dtype=int)
     if (pid < 0).any() or len(set(pid.tolist())) != len(points):
         raise MeshFileError("GetFEM merged or lost mesh nodes")

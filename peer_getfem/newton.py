@@ -2,7 +2,9 @@
 natural monotonicity test, the per-field stopping rule, one restart from the pressed state.
 
 All on the dimensionless unknowns of terms.py. Dirichlet dofs are removed from the system:
-they keep their start value (0) and are never updated.
+they keep their start value (0) and are never updated. A floating electrode's phi dofs are
+one unknown (Unknowns.floating): the system is P^T R = q, P^T J P, with P the prolongation
+that copies the electrode's first dof to the others (docs/model.md, "Floating electrodes").
 """
 
 from __future__ import annotations
@@ -12,7 +14,7 @@ from dataclasses import dataclass, field
 from typing import Callable
 
 import numpy as np
-from scipy.sparse import csc_matrix
+from scipy.sparse import csc_matrix, csr_matrix
 from scipy.sparse.linalg import splu
 
 HALVINGS = 6  # the step length is halved at most 6 times
@@ -28,6 +30,9 @@ class Unknowns:
     fields: list[str]
     dirichlet: dict[str, np.ndarray]
     given: dict[str, tuple[np.ndarray, float]] = field(default_factory=dict)
+    # phi's dofs of each floating electrode and its net free charge over phi's equation scale:
+    # the electrode's equation is the sum of its dofs' residuals, R_phi(1 on the electrode) = Q.
+    floating: list[tuple[np.ndarray, float]] = field(default_factory=list)
 
     def ranges(self) -> dict[str, np.ndarray]:
         out = {}
@@ -36,19 +41,46 @@ class Unknowns:
             out[name] = np.arange(start, start + size)
         return out
 
+    def electrodes(self) -> list[tuple[np.ndarray, float]]:
+        """Each floating electrode's global dofs (the first its master) and scaled charge."""
+        phi = self.ranges().get("phi")
+        return [] if phi is None else [(phi[dofs], charge) for dofs, charge in self.floating]
+
     def free(self) -> np.ndarray:
+        """The dofs of the reduced system: neither constrained nor an electrode's non-master."""
         mask = np.ones(self.md.nbdof(), dtype=bool)
         for name, r in self.ranges().items():
             mask[r[self.dirichlet[name]]] = False
+        for dofs, _ in self.electrodes():
+            if not mask[dofs].all():
+                raise ValueError("a floating electrode shares a node with a part of fixed potential")
+            mask[dofs[1:]] = False
         return np.flatnonzero(mask)
 
+    def reduction(self) -> Reduction:
+        free = self.free()
+        if not self.floating:
+            return Reduction(free)
+        column = np.full(self.md.nbdof(), -1)
+        column[free] = np.arange(len(free))
+        charges = np.zeros(len(free))
+        for dofs, charge in self.electrodes():
+            column[dofs] = column[dofs[0]]
+            charges[column[dofs[0]]] = charge
+        rows = np.flatnonzero(column >= 0)
+        prolong = csr_matrix((np.ones(len(rows)), (rows, column[rows])), shape=(self.md.nbdof(), len(free)))
+        return Reduction(free, prolong, charges)
+
     def impose(self, x: np.ndarray) -> None:
-        """x with the Dirichlet values at the constrained dofs (Newton's increments keep them)."""
+        """x with the Dirichlet values at the constrained dofs (Newton's increments keep them),
+        and each floating electrode at one potential, its master's."""
         for name, r in self.ranges().items():
             x[r[self.dirichlet[name]]] = 0.0
             if name in self.given:
                 dofs, value = self.given[name]
                 x[r[dofs]] = value
+        for dofs, _ in self.electrodes():
+            x[dofs] = x[dofs[0]]
 
     def get(self) -> np.ndarray:
         return np.concatenate([np.asarray(self.md.variable(n), dtype=float) for n in self.fields])
@@ -56,6 +88,31 @@ class Unknowns:
     def set(self, x: np.ndarray) -> None:
         for name, r in self.ranges().items():
             self.md.set_variable(name, x[r])
+
+
+@dataclass(frozen=True)
+class Reduction:
+    """From the model's dofs to the reduced system's and back: the free dofs alone, or with
+    floating electrodes the prolongation P (model = P reduced) and the electrodes' charges."""
+
+    free: np.ndarray
+    prolong: csr_matrix | None = None
+    charges: np.ndarray | None = None
+
+    def residual(self, r: np.ndarray) -> np.ndarray:
+        return r[self.free] if self.prolong is None else self.prolong.T @ r - self.charges
+
+    def tangent(self, jac: csc_matrix) -> csc_matrix:
+        if self.prolong is None:
+            return jac[self.free][:, self.free].tocsc()
+        return (self.prolong.T @ jac @ self.prolong).tocsc()
+
+    def expand(self, dy: np.ndarray, size: int) -> np.ndarray:
+        if self.prolong is None:
+            out = np.zeros(size)
+            out[self.free] = dy
+            return out
+        return self.prolong @ dy
 
 
 @dataclass
@@ -73,16 +130,16 @@ class NewtonResult:
     newton_s: float = 0.0
 
 
-def system(md, free: np.ndarray, result: NewtonResult, tangent: bool = True):  # noqa: ANN001, ANN201
-    """The residual R (and the tangent J) restricted to the free dofs."""
+def system(md, free: Reduction, result: NewtonResult, tangent: bool = True):  # noqa: ANN001, ANN201
+    """The residual R (and the tangent J) of the reduced system."""
     clock = time.perf_counter()
     md.assembly("build_all" if tangent else "build_rhs")
-    residual = -np.asarray(md.rhs(), dtype=float)[free]  # GetFEM's rhs is -R
+    residual = free.residual(-np.asarray(md.rhs(), dtype=float))  # GetFEM's rhs is -R
     jac = None
     if tangent:
         k = md.tangent_matrix()
         indptr, indices = k.csc_ind()
-        jac = csc_matrix((k.csc_val(), indices, indptr), shape=k.size())[free][:, free].tocsc()
+        jac = free.tangent(csc_matrix((k.csc_val(), indices, indptr), shape=k.size()))
     result.assembly_s += time.perf_counter() - clock
     return residual, jac
 
@@ -100,7 +157,7 @@ def newton(md, unknowns: Unknowns, start: dict[str, np.ndarray] | None, settings
     clock = time.perf_counter()
     rtol, max_it = float(settings["rtol"]), int(settings["max_iterations"])
     result = NewtonResult(increments={f: [] for f in unknowns.fields})
-    ranges, free = unknowns.ranges(), unknowns.free()
+    ranges, free = unknowns.ranges(), unknowns.reduction()
     x = np.zeros(md.nbdof()) if start is None else place(start, ranges, md.nbdof())
     unknowns.impose(x)
     unknowns.set(x)
@@ -112,9 +169,9 @@ def newton(md, unknowns: Unknowns, start: dict[str, np.ndarray] | None, settings
         tick = time.perf_counter()
         lu = splu(jac)  # SuperLU with COLAMD: 2D n = 64 in 70 s; MMD_AT_PLUS_A had not finished after 14 min
         result.factorisation_s += time.perf_counter() - tick
-        dx = np.zeros_like(x)
-        dx[free] = -solve(lu, r, result)
-        alpha, passed = damped(md, unknowns, x, dx, free, lu, result)
+        dy = -solve(lu, r, result)
+        dx = free.expand(dy, len(x))
+        alpha, passed = damped(md, unknowns, x, dx, dy, free, lu, result)
         x = x + alpha * dx
         unknowns.set(x)
         new_state = contact_state()
@@ -176,12 +233,14 @@ def solve(lu, rhs: np.ndarray, result: NewtonResult) -> np.ndarray:  # noqa: ANN
     return out
 
 
-def damped(md, unknowns: Unknowns, x: np.ndarray, dx: np.ndarray, free: np.ndarray, lu, result: NewtonResult):  # noqa: ANN001, ANN201
+def damped(md, unknowns: Unknowns, x: np.ndarray, dx: np.ndarray, dy: np.ndarray, free: Reduction, lu,  # noqa: ANN001
+           result: NewtonResult):  # noqa: ANN201
     """Deuflhard's natural monotonicity test: the largest alpha = 1, 1/2, ... 1/64 with
-    ||J^-1 R(x + alpha dx)|| <= (1 - alpha/4) ||dx|| (the simplified Newton step, with the
-    same factorisation). None passes: the smallest step, and the step counts as stalled."""
-    size = np.linalg.norm(dx[free])
-    if size <= 1e-13 * max(np.linalg.norm(x[free]), 1e-300):
+    ||J^-1 R(x + alpha dx)|| <= (1 - alpha/4) ||dy|| (the simplified Newton step, with the
+    same factorisation; dy the reduced step). None passes: the smallest step, and the step
+    counts as stalled."""
+    size = np.linalg.norm(dy)
+    if size <= 1e-13 * max(np.linalg.norm(x[free.free]), 1e-300):
         return 1.0, True  # a round-off step: nothing to damp
     alpha = 1.0
     for _ in range(HALVINGS + 1):

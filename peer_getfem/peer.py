@@ -19,6 +19,7 @@ import math
 import resource
 import sys
 import time
+from dataclasses import replace
 from pathlib import Path
 
 EXIT_INPUT, EXIT_NOT_CONVERGED, EXIT_NO_GETFEM = 2, 3, 4
@@ -31,9 +32,11 @@ except ImportError:
 
 import numpy as np
 
-from gmsh22 import MeshFileError, getfem_mesh, read_msh
+from gmsh22 import CELL_REGION, MeshFileError, getfem_mesh, read_msh
 from newton import NewtonResult, Unknowns, newton
-from terms import CONTACT, Problem, macros, reduced, resultants, scales, terms
+from rotation import turned
+from terms import (CHARGE_OF, CONTACT, CONTACT_MACROS, FLOATING, Body, Problem, define_functions, macros, reduced,
+                   resultants, scales, terms)
 
 # Integration: the bulk integrands are at most of degree 2 on P1 (exact with any rule of
 # degree >= 2). The contact integrals use the rules FreeFEM uses: on segments (2D) the
@@ -77,9 +80,39 @@ def problem_of(spec: dict) -> Problem:
     data = {k: dict(spec.get(k) or {}) for k in ("loads", "contact", "electric_contact", "thermal_contact")}
     bound = data["electric_contact"].get("L", math.inf)
     data["electric_contact"]["L"] = 1e300 if bound is None or math.isinf(float(bound)) else float(bound)
-    return Problem(dimension, frozenset(spec["effects"]), reduced(spec["material"], dimension), data,
-                   scales(spec["material"], data["electric_contact"].get("phi_f", 0.0),
+    bodies = bodies_of(spec, dimension)
+    return Problem(dimension, frozenset(spec["effects"]), tuple(b for b, _ in bodies), data,
+                   scales(bodies[0][1], data["electric_contact"].get("phi_f", 0.0),
                           data["thermal_contact"].get("theta_f", 0.0), data["loads"].get("electrode_potential", 0.0)))
+
+
+def bodies_of(spec: dict, dimension: int) -> list[tuple[Body, dict]]:
+    """Each body and its material in the scene's axes (3D tensors): the whole body with
+    spec's material, or each material region (spec's "regions": the cells' label, the
+    material, its poling) on its cells. A poling is the unit vector of the scene's
+    dimension along which the material's axis 3 points (None: the file's own axes)."""
+    regions = spec.get("regions") or [{"label": None, "material": spec["material"], "poling": spec.get("poling")}]
+    out = []
+    for r in regions:
+        material = oriented(r["material"], r.get("poling"), dimension)
+        if r["label"] is None:
+            body = Body("bulk", -1, "", reduced(material, dimension))
+        else:
+            label = int(r["label"])
+            body = Body(f"body{label}", CELL_REGION + label, f"R{label}", reduced(material, dimension))
+        out.append((body, material))
+    return out
+
+
+def oriented(material: dict, poling: list[float] | None, dimension: int) -> dict:
+    """The material poled along `poling`; in 2D the drawing's (x, y) are the 3D axes (1, 3),
+    so an in-plane axis (a, b) is the 3D axis (a, 0, b) (docs/model.md section 9)."""
+    if poling is None:
+        return material
+    axis = np.array(poling, float) if dimension == 3 else np.array([poling[0], 0.0, poling[1]], float)
+    if not (np.isfinite(axis).all() and np.linalg.norm(axis) > 0):
+        raise InputError(f"poling axis {poling} (a nonzero vector of {dimension} numbers)")
+    return material if np.array_equal(axis / np.linalg.norm(axis), [0.0, 0.0, 1.0]) else turned(material, axis)
 
 
 def solve(spec: dict) -> dict:
@@ -87,7 +120,12 @@ def solve(spec: dict) -> dict:
     p = problem_of(spec)
     labels = {role: int(label) for role, label in spec["labels"].items()}
     msh = read_msh(Path(spec["mesh"]), p.dimension)
+    present = set(msh.labels.tolist())
+    p = replace(p, floating=tuple(role for role in FLOATING if role in labels and labels[role] in present))
+    if p.floating and not p.has("piezoelectric"):
+        raise InputError(f"a floating electrode ({p.floating[0]}) needs the effect piezoelectric")
     mesh = getfem_mesh(gf, msh, p.dimension)
+    define_functions(gf)
     mim = gf.MeshIm(mesh, gf.Integ(INTEGRATION[p.dimension]))
     mfu = gf.MeshFem(mesh, p.dimension)
     mfu.set_classical_fem(1)
@@ -100,10 +138,11 @@ def solve(spec: dict) -> dict:
         md.add_fem_variable(name, mfs)
     for name, expr in macros(p).items():
         md.add_macro(name, expr)
+    region_of = {b.role: b.region for b in p.bodies}  # the whole body (-1) or a material region's cells
     for role, expr in terms(p):
-        md.add_nonlinear_term(mim, expr, -1 if role == "bulk" else labels[role])
+        md.add_nonlinear_term(mim, expr, region_of[role] if role in region_of else -1 if role == "bulk" else labels[role])
     unknowns = Unknowns(md, fields, dirichlet_dofs(mfu, mfs, fields, labels, p.dimension),
-                        electrode(mfs, fields, labels, p))
+                        electrode(mfs, fields, labels, p), floating(mfs, labels, p))
     setup = time.perf_counter() - clock
     start = spec["start"]
     if start not in ("zero", "pressed", "given"):
@@ -132,7 +171,7 @@ def dirichlet_dofs(mfu, mfs, fields: list[str], labels: dict[str, int], dimensio
     if "phi" in fields:
         out["phi"] = on(mfs, ["clamped", "ground", "electrode"])
     if "theta" in fields:
-        out["theta"] = on(mfs, ["clamped", "loaded", "free", "ground", "electrode"])
+        out["theta"] = on(mfs, ["clamped", "loaded", "free", "ground", "electrode", *FLOATING])
     return out
 
 
@@ -142,6 +181,16 @@ def electrode(mfs, fields: list[str], labels: dict[str, int], p: Problem) -> dic
         return {}
     dofs = np.asarray(mfs.basic_dof_on_region(labels["electrode"]), dtype=int)
     return {"phi": (dofs, p.data["loads"].get("electrode_potential", 0.0) / p.scales.Phi)}
+
+
+def floating(mfs, labels: dict[str, int], p: Problem) -> list[tuple[np.ndarray, float]]:  # noqa: ANN001
+    """phi's dofs on each floating electrode and its net free charge Q over phi's equation
+    scale (docs/model.md, "Floating electrodes": phi uniform and unknown there)."""
+    out = []
+    for role in p.floating:
+        dofs = np.asarray(mfs.basic_dof_on_region(labels[role]), dtype=int)
+        out.append((dofs, float(p.data["loads"].get(CHARGE_OF[role], 0.0)) / p.scales.Sphi))
+    return out
 
 
 def pressed_state(md, mim, mfu, mfs, fields: list[str], labels: dict[str, int], p: Problem,  # noqa: ANN001
@@ -214,20 +263,20 @@ def to_scipy(matrix):  # noqa: ANN001, ANN201
 def contact_state(md, mim, mfu, mfs, p: Problem, labels: dict[str, int]):  # noqa: ANN001, ANN201
     """A function giving the contact state of Gamma_3's nodes: closed (some quadrature point
     of a face around the node penetrates, s > 0) and, with friction, slipping (c_nu |u_tau|
-    >= S there). Newton stops only when the last step changed neither."""
+    >= R there, the slip bound of terms.friction). Newton stops only when the last step changed
+    neither."""
     if not p.has("contact"):
         return lambda: np.zeros(0, dtype=bool)
     region = labels[CONTACT]
-    c = p.data["contact"]
     probe = gf.Model("real")  # a test function per node, and u as data
     probe.add_fem_variable("z", mfs)
     probe.add_fem_data("u", mfu)
     for name, expr in macros(p).items():
-        if name in ("Pen", "UTau"):
+        if name in CONTACT_MACROS:
             probe.add_macro(name, expr)
     kinds = ["Heaviside(Pen - 1e-300)"]
     if p.has("friction"):
-        kinds.append(f"Heaviside(Norm({c['c_nu']!r}*UTau) - {c['S']!r})")
+        kinds.append("Heaviside(Norm(Wt) - SlipBound)")  # on the ball's rim or outside: slip
 
     def state() -> np.ndarray:
         probe.set_variable("u", md.variable("u"))

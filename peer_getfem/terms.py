@@ -26,6 +26,12 @@ PLANE_AXES = [0, 2]
 
 # Role labels (harness/core/contract.py ROLE_LABELS), the GetFEM region numbers.
 CLAMPED, LOADED, FREE, CONTACT = "clamped", "loaded", "free", "contact"
+# Floating electrodes (open conductors of Gamma_2: loaded by f2, theta = 0 there), and the
+# [loads] key of each one's net free charge.
+FLOATING = ("floating", "floating_2", "floating_3")
+CHARGE_OF = {role: "floating_charge" + role.removeprefix("floating") for role in FLOATING}
+# The macros of the contact state (macros()): they read u alone, not phi or theta.
+CONTACT_MACROS = ("Pen", "UTau", "SlipBound", "Wt", "Ptau")
 
 
 @dataclass(frozen=True)
@@ -82,23 +88,35 @@ def voigt_to_tensor(s: str, dimension: int) -> str:
 
 
 @dataclass(frozen=True)
+class Body:
+    """A part of the body with one material (reduced): the whole body ("bulk"), or the
+    cells of one material region, GetFEM region `region`, whose law macros carry `suffix`."""
+
+    role: str
+    region: int
+    suffix: str
+    material: dict[str, np.ndarray]
+
+
+@dataclass(frozen=True)
 class Problem:
-    """What the residual needs: dimension, effects, material (reduced), data, scales."""
+    """What the residual needs: dimension, effects, the bodies' materials, data, scales."""
 
     dimension: int
     effects: frozenset[str]
-    material: dict[str, np.ndarray]
+    bodies: tuple[Body, ...]
     data: dict[str, dict[str, float]]
     scales: Scales
+    floating: tuple[str, ...] = ()  # the floating electrodes' roles the mesh has
 
     def has(self, effect: str) -> bool:
         return effect in self.effects
 
 
-def macros(p: Problem) -> dict[str, str]:
-    """GWFL macros: the physical stress (Voigt), electric displacement and heat flux, and
-    the contact quantities, in SI units, from the scaled unknowns."""
-    s, d, mat = p.scales, p.dimension, p.material
+def law_macros(p: Problem, body: Body) -> dict[str, str]:
+    """The physical stress (Voigt), electric displacement and heat flux of one material, in SI
+    units, from the scaled unknowns."""
+    s, d, mat, x = p.scales, p.dimension, body.material, body.suffix
     sigma = f"({num(s.U)}*({matrix(mat['C'])}*{voigt_strain('Grad_u', d)}))"
     dfield = f"(-{num(s.Phi)}*({matrix(mat['beta'])}*Grad_phi))" if p.has("piezoelectric") else ""
     if p.has("piezoelectric"):
@@ -109,16 +127,56 @@ def macros(p: Problem) -> dict[str, str]:
         sigma += f" - {num(s.Theta)}*theta*{matrix(mat['m'])}"
     if p.has("pyroelectric"):
         dfield += f" - {num(s.Theta)}*theta*{matrix(mat['p'])}"
-    out = {"SigV": f"({sigma})"}
+    out = {f"SigV{x}": f"({sigma})"}
     if p.has("piezoelectric"):
-        out["Dv"] = f"({dfield})"
+        out[f"Dv{x}"] = f"({dfield})"
     if p.has("thermal"):
-        out["Qv"] = f"(-{num(s.Theta)}*({matrix(mat['k'])}*Grad_theta))"
+        out[f"Qv{x}"] = f"(-{num(s.Theta)}*({matrix(mat['k'])}*Grad_theta))"
+    return out
+
+
+def macros(p: Problem) -> dict[str, str]:
+    """GWFL macros: each body's law (law_macros) and the contact quantities."""
+    s = p.scales
+    out = {name: expr for body in p.bodies for name, expr in law_macros(p, body).items()}
     if p.has("contact"):
         c = p.data["contact"]
         out["Pen"] = f"({num(s.U)}*(u.Normal) - {num(c['gap'])})"  # s = u_nu - g [m]
         out["UTau"] = f"({num(s.U)}*(u - (u.Normal)*Normal))"  # u_tau [m]
+    if p.has("friction"):
+        out.update(friction(c))
     return out
+
+
+def define_functions(gf) -> None:  # noqa: ANN001 (the getfem module)
+    """GWFL functions the macros call. AtRest(t) = H(-t), 1 at t = 0 and 0 for t > 0, as an
+    indicator whose derivative is 0 (GetFEM will not differentiate Heaviside): it selects a
+    tangent, it is not a term of the residual."""
+    gf.asm_define_function("AtRest", 1, "Heaviside(-t)", "0")
+
+
+def friction(c: dict[str, float]) -> dict[str, str]:
+    """The friction law, once (docs/laws.md): the tangential traction P_B(0,R)(w), w = c_nu u_tau,
+    the projection onto the ball of radius R in the tangent space (an interval in 2D, a disc in
+    3D), whose derivative GetFEM takes itself, in w and in R; and the ball's radius, which also
+    tells stick (|w| < R) from slip (|w| >= R) in the contact state.
+
+    R is the slip bound: Tresca's S, or Coulomb's mu times the normal pressure c_nu (s)_+
+    (contact.friction_law). Coulomb's ball is a point where the contact is open; a point at
+    rest there (w = 0 exactly, the zero and pressed starts) counts as sticking, as in the
+    model's tangent (H(0) = 1 for the normal law likewise): its radius is lifted to 1 N/m^2
+    while w = 0. That changes no value, P_B(0) = 0 for any radius, only the tangent (c_nu I
+    instead of GetFEM's 0 for a ball of radius 0) and the stick/slip state, so that Newton's
+    path is the model's. Tresca keeps S as it is (S = 0 slips)."""
+    law = c.get("friction_law", "tresca")
+    if law == "tresca":
+        bound = num(c["S"])
+    elif law == "coulomb":
+        at_rest = "AtRest(Norm_sqr(UTau))"  # 1 where u_tau = 0 (|u_tau| < 1e-154 m), else 0
+        bound = f"({num(c.get('mu', 0.0))}*{num(c['c_nu'])}*pos_part(Pen) + {at_rest})"
+    else:
+        raise ValueError(f"contact.friction_law {law!r} (tresca | coulomb)")
+    return {"SlipBound": bound, "Wt": f"({num(c['c_nu'])}*UTau)", "Ptau": "Ball_projection(Wt, SlipBound)"}
 
 
 def truncated(t: str, bound: float) -> str:
@@ -136,31 +194,30 @@ def terms(p: Problem) -> list[tuple[str, str]]:
     equation's scale. The residual is docs/model.md's R_u, R_phi, R_theta."""
     s, d, loads = p.scales, p.dimension, p.data["loads"]
     axes = "xyz"[:d]
-    out = [("bulk", f"({voigt_to_tensor('SigV', d)}):Grad_Test_u/{num(s.Su)}")]
+    out = [(b.role, f"({voigt_to_tensor('SigV' + b.suffix, d)}):Grad_Test_u/{num(s.Su)}") for b in p.bodies]
     traction = [loads.get(f"traction_{a}", 0.0) for a in axes]
     body = [loads.get(f"body_force_{a}", 0.0) for a in axes]
     if any(traction):
-        out.append((LOADED, f"-({matrix(np.array(traction))}.Test_u)/{num(s.Su)}"))
+        out.extend((role, f"-({matrix(np.array(traction))}.Test_u)/{num(s.Su)}") for role in (LOADED, *p.floating))
     if any(body):
         out.append(("bulk", f"-({matrix(np.array(body))}.Test_u)/{num(s.Su)}"))
     if p.has("piezoelectric"):
-        out.append(("bulk", f"-(Dv.Grad_Test_phi)/{num(s.Sphi)}"))
+        out.extend((b.role, f"-(Dv{b.suffix}.Grad_Test_phi)/{num(s.Sphi)}") for b in p.bodies)
         if loads.get("surface_charge", 0.0):
             for role in (LOADED, FREE):  # Gamma_b: D.nu = phi2, entering R_phi with +
                 out.append((role, f"{num(loads['surface_charge'])}*Test_phi/{num(s.Sphi)}"))
         if loads.get("charge_density", 0.0):
             out.append(("bulk", f"-{num(loads['charge_density'])}*Test_phi/{num(s.Sphi)}"))
     if p.has("thermal"):
-        out.append(("bulk", f"-(Qv.Grad_Test_theta)/{num(s.Stheta)}"))
+        out.extend((b.role, f"-(Qv{b.suffix}.Grad_Test_theta)/{num(s.Stheta)}") for b in p.bodies)
         if loads.get("heat_source", 0.0):
             out.append(("bulk", f"-{num(loads['heat_source'])}*Test_theta/{num(s.Stheta)}"))
     if p.has("contact"):
         c = p.data["contact"]
         # Normal compliance: sigma_nu = -c_nu (u_nu - g)_+, tested with v_nu.
         out.append((CONTACT, f"{num(c['c_nu'])}*pos_part(Pen)*(Test_u.Normal)/{num(s.Su)}"))
-        if p.has("friction"):
-            # Tresca: sigma_tau = -P_B(0,S)(c_nu u_tau), a disc in 3D, an interval in 2D.
-            out.append((CONTACT, f"(Ball_projection({num(c['c_nu'])}*UTau, {num(c['S'])}).Test_u)/{num(s.Su)}"))
+        if p.has("friction"):  # sigma_tau = -P_B(0,R)(c_nu u_tau), tested with v_tau
+            out.append((CONTACT, f"(Ptau.Test_u)/{num(s.Su)}"))
     if p.has("electric_contact"):
         e = p.data["electric_contact"]
         flux = conductance(e["k_e"], e["eps_e"]) + "*" + truncated(num(s.Phi) + "*phi - " + num(e["phi_f"]), e["L"])
@@ -182,7 +239,7 @@ def resultants(p: Problem) -> dict[str, str]:
     c = p.data["contact"]
     out["contact_force"] = f"{num(c['c_nu'])}*pos_part(Pen)"
     if p.has("friction"):
-        out["friction_force_vector"] = f"Ball_projection({num(c['c_nu'])}*UTau, {num(c['S'])})"
+        out["friction_force_vector"] = "Ptau"
     if p.has("electric_contact"):
         e = p.data["electric_contact"]
         out["charge_in_contact"] = "-" + conductance(e["k_e"], e["eps_e"]) + "*" + truncated(

@@ -145,8 +145,8 @@ def test_kuhn_transfer_is_exact_for_linear_fields_and_nested_meshes():
     # A coarse P1 field that is not linear: transferred, its fine seminorm is the coarse one (nested).
     values = np.sin(coarse.points[:, 0] * 3) * coarse.points[:, 2]
     moved = np.einsum("nk,nk->n", w, values[nodes])
-    assert simplex_seminorm(fine.points, fine.tetrahedra, moved) == pytest.approx(
-        simplex_seminorm(coarse.points, coarse.tetrahedra, values), rel=1e-12)
+    assert simplex_seminorm(fine.points, fine.cells, moved) == pytest.approx(
+        simplex_seminorm(coarse.points, coarse.cells, values), rel=1e-12)
 
 
 def test_simplex_seminorm_is_the_triangle_seminorm_in_2d():

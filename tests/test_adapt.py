@@ -176,3 +176,26 @@ def test_an_adaptive_slope_outside_the_cases_band_is_a_failed_verdict(capsys, tm
     assert err[-1].startswith("error: ") and "adaptive slope" in err[-1] and "[1.5, 2.0]" in err[-1], err[-1]
     summary = json.loads((results / "adapt" / "paper" / "summary.json").read_text())
     assert summary["adaptive_band"] == [1.5, 2.0] and set(summary["slope_of_estimate"]) == {"u", "phi", "theta"}
+
+
+def test_the_steps_of_a_multi_region_scene_keep_each_cells_material(tmp_path):
+    """The bimorph's three regions (cases/bimorph.toml, two PZT layers and brass): its level 2
+    read as the first step, bisected and written, every cell keeps its region's label, so each
+    region keeps its area (to round-off) and FreeFEM gives it its material."""
+    from harness.mesh import bisection
+    from harness.mesh.mesh import build_mesh
+    from harness.study.adapt import read_start, write_step
+
+    def region_areas(path):
+        mesh = meshio.read(path)
+        tags = np.concatenate([t for b, t in zip(mesh.cells, mesh.cell_data["gmsh:physical"]) if b.type == "triangle"])
+        p = mesh.points[np.vstack([b.data for b in mesh.cells if b.type == "triangle"])]
+        area = 0.5 * np.abs((p[:, 1, 0] - p[:, 0, 0]) * (p[:, 2, 1] - p[:, 0, 1])
+                            - (p[:, 2, 0] - p[:, 0, 0]) * (p[:, 1, 1] - p[:, 0, 1]))
+        return {int(r): area[tags == r].sum() for r in np.unique(tags)}
+
+    start = build_mesh(load_scene(REPO / "cases" / "bimorph.toml").geometry, 2, tmp_path, warn=False).path
+    mesh = read_start(start, 2)
+    write_step(bisection.uniform(bisection.refine(mesh, np.arange(len(mesh.cells)) % 3 == 0)), tmp_path / "step.msh")
+    assert len(region_areas(start)) == 3
+    assert region_areas(tmp_path / "step.msh") == pytest.approx(region_areas(start), rel=1e-12)  # sums of round-off

@@ -7,6 +7,7 @@ import numpy as np
 import pytest
 
 from harness.mesh.bisection import dorfler, oriented, refine, start, uniform
+from harness.mesh.simplex import SimplexMesh
 
 
 def square(n: int = 4):
@@ -116,3 +117,18 @@ def test_dorfler_marks_the_fewest_cells_that_hold_the_fraction():
     assert dorfler(eta, 0.9).tolist() == [False, True, True, False]     # 13 >= 12.825
     assert dorfler(eta, 0.95).tolist() == [True, True, True, False]     # 14 >= 13.54 > 13
     assert dorfler(eta, 1.0).all()
+
+
+def test_every_child_keeps_its_parents_material_region():
+    """Two regions, x < 1/2 and x > 1/2 (a line of the coarse mesh): after a local refinement
+    and a uniform round, every cell's centroid lies in its region's half and each region keeps
+    its area exactly; a one-region mesh stays one region."""
+    mesh = square(4)
+    centre = mesh.points[mesh.cells].mean(axis=1)
+    two = SimplexMesh(mesh.points, mesh.cells, mesh.facets, mesh.labels, np.where(centre[:, 0] < 0.5, 1, 2))
+    fine = uniform(refine(two, centre[:, 0] + centre[:, 1] < 0.6))
+    centre = fine.points[fine.cells].mean(axis=1)
+    assert np.array_equal(fine.regions, np.where(centre[:, 0] < 0.5, 1, 2))
+    area = np.abs(areas(fine.points, fine.cells))
+    assert [area[fine.regions == r].sum() for r in (1, 2)] == pytest.approx([0.5, 0.5], rel=1e-14)  # round-off
+    assert uniform(mesh).regions is None

@@ -5,7 +5,9 @@ import subprocess
 import numpy as np
 import pytest
 
-from harness.mesh.box_mesh import kuhn_box, signed_volumes, write_msh
+from harness.mesh.box_mesh import kuhn_box
+from harness.mesh.msh import write_msh
+from harness.mesh.simplex import signed_measures
 from harness.core.contract import ROLE_LABELS
 from harness.core.errors import MeshError
 from harness.core.freefem import command, environment
@@ -34,16 +36,16 @@ def barycentric(points: np.ndarray, tet: np.ndarray, xs: np.ndarray) -> np.ndarr
 @pytest.mark.parametrize("n", [1, 2, 4])
 def test_tetrahedra_are_positive_and_fill_the_box(n):
     mesh = kuhn_box(BOX, n, paper_roles)
-    volumes = signed_volumes(mesh.points, mesh.tetrahedra)
+    volumes = signed_measures(mesh.points, mesh.cells)
     assert volumes.min() > 0
     # Exact up to round-off: 6 n^3 Lx Ly Lz tetrahedra of volume h^3 / 6 each.
     assert volumes.sum() == pytest.approx(np.prod(BOX), rel=1e-12)
-    assert len(mesh.tetrahedra) == 6 * round(BOX[0] * n) * round(BOX[1] * n) * round(BOX[2] * n)
+    assert len(mesh.cells) == 6 * round(BOX[0] * n) * round(BOX[1] * n) * round(BOX[2] * n)
 
 
 def test_boundary_triangles_are_outward_and_carry_their_roles():
     mesh = kuhn_box(BOX, 4, paper_roles)
-    p = mesh.points[mesh.triangles]
+    p = mesh.points[mesh.facets]
     normal = np.cross(p[:, 1] - p[:, 0], p[:, 2] - p[:, 0]) / 2
     centroid = p.mean(axis=1)
     # Outward: the normal points away from the box's centre on every face.
@@ -58,9 +60,9 @@ def test_meshes_are_nested_under_uniform_refinement():
     # fine P1 field (the coarse-to-fine transfer of the study is then exact).
     unit = (1.0, 1.0, 1.0)
     coarse, fine = kuhn_box(unit, 2, paper_roles), kuhn_box(unit, 4, paper_roles)
-    for tet in fine.tetrahedra:
+    for tet in fine.cells:
         corners = fine.points[tet]
-        inside = [np.all(barycentric(coarse.points, c, corners) > -1e-12) for c in coarse.tetrahedra]
+        inside = [np.all(barycentric(coarse.points, c, corners) > -1e-12) for c in coarse.cells]
         assert sum(inside) == 1
 
 
@@ -89,7 +91,7 @@ def test_freefem_reads_the_mesh_with_its_volume_and_face_labels(tmp_path):
 
 
 def test_an_unstructured_box_mesh_is_reproducible_exact_on_its_patches_and_not_the_lattice(tmp_path):
-    """geometry.diagonals = "unstructured" for a box (harness/mesh/mesh.py unstructured_box): gmsh's
+    """geometry.diagonals = "unstructured" for a box (harness/mesh/box_mesh.py unstructured_box): gmsh's
     tetrahedra on the box cut at every patch edge. Each role's triangles cover its patches'
     area exactly (checked inside build_mesh), every volume is positive, and the same bytes
     come out on every call."""
@@ -106,6 +108,6 @@ def test_an_unstructured_box_mesh_is_reproducible_exact_on_its_patches_and_not_t
     assert first.role_lengths == pytest.approx({"clamped": 2.0, "loaded": 2.0, "free": 12.0, "contact": 2.0})
     mesh = meshio.read(first.path)
     tets = mesh.cells_dict["tetra"]
-    assert (signed_volumes(mesh.points, tets) > 0).all()
-    assert signed_volumes(mesh.points, tets).sum() == pytest.approx(4.0, rel=1e-12)
+    assert (signed_measures(mesh.points, tets) > 0).all()
+    assert signed_measures(mesh.points, tets).sum() == pytest.approx(4.0, rel=1e-12)
     assert first.nodes != 17 * 5 * 5  # not the Kuhn lattice's (4n + 1)(n + 1)^2 nodes

@@ -139,15 +139,6 @@ def test_only_a_scene_with_a_floating_part_compiles_the_elimination():
     assert floating_macros(load_scene(DATA / "floating_sensor3d.toml").geometry) == {"FLOATING": "1"}
 
 
-def test_crosscheck_refuses_a_floating_electrode_as_unsupported(tmp_path, capsys):
-    """The GetFEM peer has no floating electrode: refused in one line (exit 2), never solved
-    there with the part left free and reported as a disagreement."""
-    code = main(["crosscheck", str(DATA / "floating_layer.toml"), "--levels", "2", "--results", str(tmp_path)])
-    err = capsys.readouterr().err.strip().splitlines()
-    assert code == ExitCode.INPUT and len(err) == 1, err
-    assert "floating_layer.toml" in err[0] and "no floating electrode" in err[0]
-
-
 def test_a_floating_electrode_on_the_contact_scene_is_the_driven_one_of_its_own_potential(tmp_path):
     """With contact, friction and heat (the paper's scene, its top's middle floating with no
     charge, pressed by its weight): an electrode driven at the floating potential found gives the same
@@ -223,9 +214,9 @@ def test_a_laterally_free_pressed_plate_gives_the_textbook_plate_formula(tmp_pat
     assert abs(checks["floating_charge"][0]) <= 1e-12 * checks["floating_charge_reading"][0]
 
 
-def test_make_crosscheck_leaves_out_the_scenes_with_a_floating_electrode():
-    """`make crosscheck` runs every case but those the peer cannot solve: with the force sensor
-    among them it would stop at the refusal (exit 2) instead of crosschecking the rest."""
+def test_make_crosscheck_takes_every_scene_the_force_sensor_too():
+    """The peer solves floating electrodes, regions and Coulomb friction: `make crosscheck`
+    leaves no case out (before, the force sensor was, the peer having no floating electrode)."""
     import subprocess
     from pathlib import Path
 
@@ -233,4 +224,6 @@ def test_make_crosscheck_leaves_out_the_scenes_with_a_floating_electrode():
     # --no-print-directory: under `make test` this make is nested and would end with "Leaving directory"
     listed = subprocess.run(["make", "--no-print-directory", "-n", "crosscheck"], cwd=root, capture_output=True,
                             text=True, check=True, timeout=60).stdout.splitlines()[-1]
-    assert "cases/disc_pad.toml" in listed and "cases/force_sensor.toml" not in listed
+    every = sorted(str(p.relative_to(root)) for p in [*root.glob("cases/*.toml"), *root.glob("cases/hard/*.toml")])
+    assert all(case in listed.split() for case in every)
+    assert {"cases/force_sensor.toml", "cases/bimorph.toml", "cases/coulomb.toml"} <= set(listed.split())

@@ -16,7 +16,8 @@ from harness.measure.checks import contact_node_count, contact_nodes, contact_no
 from harness.cli import main
 from harness.core.contract import ExitCode, ROLE_LABELS
 from harness.core.errors import MeshError
-from harness.mesh.gmsh_mesh import oriented, quality
+from harness.mesh.gmsh_mesh import oriented
+from harness.mesh.simplex import quality
 from harness.mesh.mesh import build_mesh
 from harness.scene.scene import load_scene
 from harness.measure.fields import read_state

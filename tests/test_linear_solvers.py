@@ -16,7 +16,7 @@ from harness.core.layout import Layout
 from harness.mesh.mesh import build_mesh
 from harness.run.run import run_level
 from harness.scene.scene import load_scene
-from harness.scene.schema import LINEAR_SOLVERS
+from harness.scene.linear_solvers import SOLVERS
 
 CASE = Path(__file__).parents[1] / "cases" / "paper.toml"
 N = 4
@@ -33,13 +33,13 @@ def solve(tmp_path: Path, solver: str):
 @pytest.fixture(scope="module")
 def runs(tmp_path_factory):
     root = tmp_path_factory.mktemp("solvers")
-    return {name: solve(root, name) for name in LINEAR_SOLVERS}
+    return {name: solve(root, name) for name in SOLVERS}
 
 
 def test_every_linear_solver_gives_the_same_solution(runs):
     reference = read_state(runs["umfpack"].directory / "state.txt")
     for name, run in runs.items():
-        assert run.record.linear_solver.startswith(LINEAR_SOLVERS[name][1] + " ")
+        assert run.record.linear_solver.startswith(SOLVERS[name].reported + " ")
         for mine, theirs in zip(read_state(run.directory / "state.txt"), reference):
             # Newton stops at a relative error of 1e-9 per field (newton.rtol); two solvers
             # may stop on either side of it.

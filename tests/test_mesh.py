@@ -14,7 +14,7 @@ from harness.core.errors import MeshError
 from harness.mesh.mesh import build_mesh
 from harness.mesh.mesh_check import check_mesh
 from harness.scene.scene import load_scene
-from harness.scene.schema import ROLE_LABELS
+from harness.core.contract import ROLE_LABELS
 
 
 def read(path: Path) -> tuple[np.ndarray, np.ndarray, meshio.Mesh]:
@@ -155,12 +155,13 @@ def test_the_check_rejects_a_missing_role(paper_case, paper_meshes, tmp_path):
 
 @pytest.mark.parametrize("case", ["paper.toml", "hard/unstructured.toml", "longcontact.toml"])
 def test_our_msh_writer_gives_gmsh_own_bytes(case, tmp_path):
-    """write_rectangle_msh replaces gmsh.write (which needed gmsh's per-node setNode to move
+    """The GMSH style of the one MSH writer (harness/mesh/msh.py) replaces gmsh.write (which needed gmsh's per-node setNode to move
     the nodes): on a level gmsh meshed and left where it is, both files are the same bytes,
     so FreeFEM reads the same mesh, node for node, as before."""
     import gmsh
 
-    from harness.mesh import mesh
+    from harness.mesh import rectangle_mesh as mesh
+    from harness.mesh.msh import AS_GMSH, write_msh
 
     from harness.core import signals
 
@@ -180,7 +181,7 @@ def test_our_msh_writer_gives_gmsh_own_bytes(case, tmp_path):
     finally:
         gmsh.finalize()
         signals.reassert()
-    mesh.write_rectangle_msh(level, tmp_path / "ours.msh")
+    write_msh(level, tmp_path / "ours.msh", AS_GMSH)
     assert (tmp_path / "ours.msh").read_bytes() == (tmp_path / "gmsh.msh").read_bytes()
 
 

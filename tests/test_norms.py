@@ -167,7 +167,7 @@ def test_point_location_in_unstructured_tetrahedra_reproduces_linear_fields(tmp_
     assert np.allclose(np.einsum("nk,nk->n", w, linear(raw.points[nodes])), linear(at), rtol=0, atol=1e-10)
 
     kuhn = kuhn_box(box.lengths, 4, box.role_of)
-    structured = Fields(kuhn.points, np.zeros((0, 3), dtype=int), {}, tmp_path, kuhn.tetrahedra)
+    structured = Fields(kuhn.points, np.zeros((0, 3), dtype=int), {}, tmp_path, kuhn.cells)
     inside = at[:500]
     grid, spacing = grid_index(kuhn.points)
     expected_nodes, expected_w = kuhn_weights(kuhn.points, grid, spacing, inside)

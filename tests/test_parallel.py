@@ -363,7 +363,8 @@ def coarse_operator(tmp_path: Path, ranks: int, n: int, coarse_levels: int) -> n
     from harness.run import launcher
     from harness.mesh.mesh import build_mesh
     from harness.core.layout import Layout
-    from harness.run.run import solver_inputs
+    from harness.run.plan import invocation
+    from harness.run.run import make_meshes
 
     layout = Layout(results=tmp_path / "results")
     scene = load_scene(CASES / "paper.toml", ["run.ranks=2", "run.coarse_space=nested",
@@ -372,8 +373,10 @@ def coarse_operator(tmp_path: Path, ranks: int, n: int, coarse_levels: int) -> n
     mesh = build_mesh(scene.geometry, n, layout.meshes_dir(scene.name)).path
     work = tmp_path / f"r{ranks}"
     work.mkdir()
-    text, options = solver_inputs(scene, mesh, n, layout, "zero", None, out=work)
-    (work / "main.edp").write_text(text)
+    planned = invocation(scene, mesh, n, layout, "zero", None)
+    make_meshes(scene, planned)
+    options = planned.bound(work)
+    (work / "main.edp").write_text(planned.script)
     argv = Ranks(ranks, scene.sections.run.launcher).argv(work / "main.edp", options)
     dump = work / "coarse.txt"
     env = {**launcher.environment(), "OMPI_MCA_rmaps_base_oversubscribe": "1"}
@@ -508,9 +511,9 @@ def test_the_coarse_space_names_the_level_of_its_own_mesh(tmp_path):
     """A split gmsh scene's nested family starts at its own coarsest level (here 4): the coarse
     space's mesh and the level FreeFEM is told (and records) are the same one. Before, the
     mesh was n = 4's and the level said 2."""
-    from harness.run.run import coarse_space_options
+    from harness.run.plan import coarse_space_options
 
     scene = load_scene(CASES / "paper_gmsh.toml", ["geometry.coarsest=4", "study.levels=[4, 8, 16]", "run.ranks=2"])
-    options = coarse_space_options(scene, 16, tmp_path / "mesh_n16.msh", make=False)
+    options = coarse_space_options(scene, 16, tmp_path / "mesh_n16.msh")
     mesh, level = options[options.index("-ddm.coarse_mesh") + 1], options[options.index("-ddm.coarse_n") + 1]
     assert Path(mesh).name == "mesh_n4.msh" and level == "4"

@@ -137,13 +137,6 @@ def test_regions_on_a_rectangle_are_refused(tmp_path, capsys):
     assert code == 2 and len(err) == 1 and "needs a gmsh scene" in err[0], err
 
 
-def test_crosscheck_refuses_regions_in_one_line(tmp_path, capsys):
-    """The GetFEM peer takes one material file: regions would be compared with one material."""
-    code = main(["crosscheck", str(DATA / "bilayer.toml"), "--levels", "4", "--results", str(tmp_path)])
-    err = capsys.readouterr().err.strip().splitlines()
-    assert code == ExitCode.INPUT and len(err) == 1 and "solves one material" in err[0], err
-
-
 def test_a_brass_shim_takes_a_small_stated_share_of_the_potential(tmp_path):
     """Brass is modelled as a dielectric of permittivity 1e-6 C/(V m): between the earthed
     clamp and a driven PZT-5H layer of the same thickness it takes the share of the potential

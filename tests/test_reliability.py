@@ -263,14 +263,14 @@ def test_a_full_disk_while_meshing_monkeypatched(capsys, tmp_path, monkeypatch):
     from harness.core import faults
     from harness.mesh import mesh
 
-    real = mesh.write_rectangle_msh
+    real = mesh.write_msh
 
-    def truncated(level, target):
-        real(level, target)
+    def truncated(level, target, style):
+        real(level, target, style)
         target.write_bytes(target.read_bytes()[: len(target.read_bytes()) // 2])
         raise OSError(errno.ENOSPC, os.strerror(errno.ENOSPC), str(target))
 
-    monkeypatch.setattr(mesh, "write_rectangle_msh", truncated)
+    monkeypatch.setattr(mesh, "write_msh", truncated)
     monkeypatch.setattr(faults, "FULL_DISK_BYTES", shutil.disk_usage(tmp_path).free * 2)
     code, err, _ = run(capsys, tmp_path / "results", "solve", str(STUB_CASE), "--n", "4")
     assert code == 4
@@ -347,7 +347,7 @@ def test_a_nameless_os_error_in_a_report_names_the_study_directory(tmp_path):
 
 def test_a_change_to_the_generated_script_is_a_cache_miss(capsys, tmp_path, monkeypatch):
     """Defect 4: a harness change that drops a line of main.edp must not reuse the old runs."""
-    from harness.run import run as run_module
+    from harness.run import plan as run_module
 
     assert run(capsys, tmp_path, "solve", str(STUB_CASE), "--n", "4")[0] == 0
     real = run_module.main_script

@@ -247,7 +247,7 @@ def test_each_check_fails_on_a_violation_it_is_meant_to_catch(checks, flag):
 
 
 def test_the_unstructured_mesh_is_distorted_reproducible_and_passes_the_mesh_checks(tmp_path):
-    """geometry.diagonals = "unstructured" (harness/mesh/mesh.py): gmsh's Frontal-Delaunay mesh of
+    """geometry.diagonals = "unstructured" (harness/mesh/rectangle_mesh.py): gmsh's Frontal-Delaunay mesh of
     size h with interior nodes shifted by up to 0.3 h; boundary roles exact, every triangle
     positive (check_mesh inside build_mesh), the same bytes on every call (seeded by n)."""
     from harness.mesh.mesh import build_mesh

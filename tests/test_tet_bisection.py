@@ -9,10 +9,10 @@ import numpy as np
 import pytest
 
 from harness.mesh import tet_bisection as tb
-from harness.mesh.simplex import boundary_facets, quality, signed_measures
+from harness.mesh.simplex import SimplexMesh, boundary_facets, quality, signed_measures
 
 
-def cube(n: int = 2) -> tb.TetMesh:
+def cube(n: int = 2) -> SimplexMesh:
     """The unit cube in n^3 Kuhn cubes of six tetrahedra; the face z = 0 labelled 3, the rest 1."""
     xs = np.linspace(0.0, 1.0, n + 1)
     points = np.array([(x, y, z) for z in xs for y in xs for x in xs])
@@ -92,3 +92,18 @@ def test_the_refinement_edge_is_the_longest_and_ties_agree_across_cells():
     assert np.allclose(cut, np.sqrt(3.0))  # every Kuhn tetrahedron's longest edge: the cube's diagonal
     keys = tb.edge_key(mesh.cells[rows, i], mesh.cells[rows, j])
     assert len(np.unique(keys)) == 1  # all six share it
+
+
+def test_every_child_keeps_its_parents_material_region():
+    """Two regions, z < 1/2 and z > 1/2 (a plane of the Kuhn grid): after a local refinement
+    and a uniform round, every tetrahedron's centroid lies in its region's half and each region
+    keeps its volume exactly; a one-region mesh stays one region."""
+    mesh = cube()
+    centre = mesh.points[mesh.cells].mean(axis=1)
+    two = SimplexMesh(mesh.points, mesh.cells, mesh.facets, mesh.labels, np.where(centre[:, 2] < 0.5, 1, 2))
+    fine = tb.uniform(tb.refine(two, centre.sum(axis=1) < 1.0), 1)
+    centre = fine.points[fine.cells].mean(axis=1)
+    assert np.array_equal(fine.regions, np.where(centre[:, 2] < 0.5, 1, 2))
+    volume = np.abs(signed_measures(fine.points, fine.cells))
+    assert [volume[fine.regions == r].sum() for r in (1, 2)] == pytest.approx([0.5, 0.5], rel=1e-14)  # round-off
+    assert tb.uniform(mesh, 1).regions is None

@@ -17,7 +17,7 @@ from harness.mesh import gmsh_mesh, tet_split
 from harness.core.gmsh_api import session
 from harness.mesh.mesh import build_mesh
 from harness.scene.scene import load_scene
-from harness.mesh.simplex import (QUALITY_FLOORS, boundary_facets, cell_facets, facet_normals, label_measures, quality,
+from harness.mesh.simplex import (QUALITY_FLOORS, SimplexMesh, boundary_facets, cell_facets, facet_normals, label_measures, quality,
                              quality_warning, signed_measures)
 from physics_runs import CASES
 
@@ -25,13 +25,13 @@ TILTED_BOX = CASES / "mms" / "tilted3d.toml"  # gmsh's tetrahedra of a turned 2 
 
 
 @pytest.fixture(scope="module")
-def coarse() -> tet_split.TetMesh:
+def coarse() -> SimplexMesh:
     mesh = gmsh_mesh.generate(load_scene(TILTED_BOX).geometry, 2)
-    return tet_split.TetMesh(mesh.points, mesh.cells, mesh.facets, mesh.labels)
+    return SimplexMesh(mesh.points, mesh.cells, mesh.facets, mesh.labels)
 
 
 @pytest.fixture(scope="module")
-def fine(coarse: tet_split.TetMesh) -> tet_split.TetMesh:
+def fine(coarse: SimplexMesh) -> SimplexMesh:
     return tet_split.split(coarse)
 
 
@@ -126,7 +126,7 @@ ASPECT_FACTOR = 2.0
 def test_three_splits_keep_the_coarse_meshes_quality(case):
     mesh = gmsh_mesh.generate(load_scene(case).geometry, 2)
     start = quality(mesh.points, mesh.cells)
-    level = tet_split.TetMesh(mesh.points, mesh.cells, mesh.facets, mesh.labels)
+    level = SimplexMesh(mesh.points, mesh.cells, mesh.facets, mesh.labels)
     for _ in range(3):
         level = tet_split.split(level)
         now = quality(level.points, level.cells)

@@ -15,6 +15,9 @@ from pathlib import Path
 ROLE_LABELS: dict[str, int] = {"clamped": 1, "loaded": 2, "free": 3, "contact": 4,
                                "roller_x": 5, "roller_y": 6, "roller_z": 7, "electrode": 8, "ground": 9,
                                "floating": 10, "floating_2": 11, "floating_3": 12}
+# The physical tag of a body's cells when the scene maps no material regions; region i of
+# a gmsh scene is tagged i + 1 instead (harness/scene/regions.py), so the first is this one.
+BODY_LABEL = 1
 # The FreeFEM name of each label (identifiers cannot contain '_').
 ROLE_MACROS: dict[str, str] = {"clamped": "labClamped", "loaded": "labLoaded", "free": "labFree", "contact": "labContact",
                                "roller_x": "labRollerX", "roller_y": "labRollerY", "roller_z": "labRollerZ",

@@ -18,17 +18,9 @@ kept during refinement (`oriented` turns cells positive without moving the refin
 
 from __future__ import annotations
 
-from dataclasses import dataclass
-
 import numpy as np
 
-
-@dataclass(frozen=True)
-class BisectionMesh:
-    points: np.ndarray  # (N, 2)
-    cells: np.ndarray   # (M, 3): cells[:, :2] the refinement edge, cells[:, 2] the newest vertex
-    facets: np.ndarray  # (B, 2) boundary edges
-    labels: np.ndarray  # (B,) their role labels
+from harness.mesh.simplex import SimplexMesh, signed_measures
 
 
 def edge_keys(a: np.ndarray, b: np.ndarray, count: int) -> np.ndarray:
@@ -46,12 +38,13 @@ def longest_edge_first(points: np.ndarray, cells: np.ndarray) -> np.ndarray:
     return np.column_stack([cells[rows, (newest + 1) % 3], cells[rows, (newest + 2) % 3], cells[rows, newest]])
 
 
-def start(points: np.ndarray, cells: np.ndarray, facets: np.ndarray, labels: np.ndarray) -> BisectionMesh:
-    return BisectionMesh(points[:, :2].astype(float), longest_edge_first(points[:, :2], cells),
-                         facets.astype(np.int64), labels.astype(np.int64))
+def start(points: np.ndarray, cells: np.ndarray, facets: np.ndarray, labels: np.ndarray,
+          regions: np.ndarray | None = None) -> SimplexMesh:
+    return SimplexMesh(points[:, :2].astype(float), longest_edge_first(points[:, :2], cells),
+                       facets.astype(np.int64), labels.astype(np.int64), regions)
 
 
-def closure(mesh: BisectionMesh, marked: np.ndarray) -> np.ndarray:
+def closure(mesh: SimplexMesh, marked: np.ndarray) -> np.ndarray:
     """The keys of every edge to cut: the marked cells' refinement edges, and the refinement
     edge of every cell that holds an edge to cut (bisection cuts a cell's refinement edge
     first), until no cell asks for more."""
@@ -67,9 +60,10 @@ def closure(mesh: BisectionMesh, marked: np.ndarray) -> np.ndarray:
         cut = np.union1d(cut, refinement[asks])
 
 
-def refine(mesh: BisectionMesh, marked: np.ndarray) -> BisectionMesh:
+def refine(mesh: SimplexMesh, marked: np.ndarray) -> SimplexMesh:
     """`mesh` with the marked cells (a boolean mask) bisected, and as many others as
-    conformity needs; every cut edge is cut once, at its midpoint."""
+    conformity needs; every cut edge is cut once, at its midpoint, and each child lies in its
+    parent's region."""
     count = len(mesh.points)
     cut = closure(mesh, np.asarray(marked, dtype=bool))
     if not len(cut):
@@ -81,7 +75,7 @@ def refine(mesh: BisectionMesh, marked: np.ndarray) -> BisectionMesh:
     big = len(points)
     cut = edge_keys(lo, hi, big)
     midpoint = dict(zip(cut.tolist(), range(count, big)))
-    cells = mesh.cells
+    cells, regions = mesh.cells, mesh.cell_labels()
     # A cell's refinement edge is cut at most twice in a row: the children's refinement
     # edges are the parent's two other edges; the grandchildren's hold a new node, never cut.
     while True:
@@ -92,16 +86,17 @@ def refine(mesh: BisectionMesh, marked: np.ndarray) -> BisectionMesh:
         a, b, c = cells[split].T
         m = np.array([midpoint[k] for k in keys[split].tolist()], dtype=np.int64)
         cells = np.vstack([cells[~split], np.column_stack([a, c, m]), np.column_stack([c, b, m])])
+        regions = np.concatenate([regions[~split], regions[split], regions[split]])
     fkeys = edge_keys(mesh.facets[:, 0], mesh.facets[:, 1], big)
     halved = np.isin(fkeys, cut)
     fm = np.array([midpoint[k] for k in fkeys[halved].tolist()], dtype=np.int64)
     fa, fb = mesh.facets[halved].T
     facets = np.vstack([mesh.facets[~halved], np.column_stack([fa, fm]), np.column_stack([fm, fb])])
     labels = np.concatenate([mesh.labels[~halved], mesh.labels[halved], mesh.labels[halved]])
-    return BisectionMesh(points, cells, facets, labels)
+    return SimplexMesh(points, cells, facets, labels, regions if mesh.regions is not None else None)
 
 
-def uniform(mesh: BisectionMesh, times: int = 1) -> BisectionMesh:
+def uniform(mesh: SimplexMesh, times: int = 1) -> SimplexMesh:
     """`times` rounds, each bisecting every cell once at least (a child whose refinement edge
     is cut too is bisected again in the same round): two rounds make four or more of each."""
     for _ in range(times):
@@ -111,10 +106,9 @@ def uniform(mesh: BisectionMesh, times: int = 1) -> BisectionMesh:
 
 def oriented(points: np.ndarray, cells: np.ndarray) -> np.ndarray:
     """`cells` with positive area, by swapping the ends of the refinement edge where needed."""
-    p = points[cells]
-    twice = (p[:, 1, 0] - p[:, 0, 0]) * (p[:, 2, 1] - p[:, 0, 1]) - (p[:, 2, 0] - p[:, 0, 0]) * (p[:, 1, 1] - p[:, 0, 1])
+    negative = signed_measures(points, cells) < 0
     out = cells.copy()
-    out[twice < 0, 0], out[twice < 0, 1] = cells[twice < 0, 1], cells[twice < 0, 0]
+    out[negative, 0], out[negative, 1] = cells[negative, 1], cells[negative, 0]
     return out
 
 

@@ -1,5 +1,6 @@
-"""Structured tetrahedral meshes of a box (0, Lx) x (0, Ly) x (0, Lz), nested under uniform
-refinement, written as gmsh MSH 2.2 for FreeFEM's `gmshload3`.
+"""Tetrahedral meshes of a box (0, Lx) x (0, Ly) x (0, Lz): structured ones, nested under
+uniform refinement, or gmsh's unstructured ones (box.diagonals = "unstructured"), each a
+SimplexMesh with its boundary triangles labelled by role.
 
 Every cube of the grid is cut into the 6 tetrahedra of the Kuhn (Freudenthal) split,
 {x in cube : x_a >= x_b >= x_c} for each ordering (a, b, c) of the axes. The tetrahedra are
@@ -15,26 +16,28 @@ into segments in 2D.
 from __future__ import annotations
 
 import itertools
-from dataclasses import dataclass
-from pathlib import Path
 from typing import Callable
 
+import gmsh
 import numpy as np
 
 from harness.core.contract import ROLE_LABELS
 from harness.core.errors import MeshError
+from harness.core.gmsh_api import session
+from harness.mesh.simplex import SimplexMesh, facet_normals, positively_oriented
+from harness.scene.box import Box
 
 # role of a boundary triangle, from its centroid and the outward normal axis (0, 1, 2) and side (-1, +1)
 RoleOf = Callable[[np.ndarray, int, int], str]
-BODY_LABEL = 1
 
 
-@dataclass(frozen=True)
-class BoxMesh:
-    points: np.ndarray  # (N, 3)
-    tetrahedra: np.ndarray  # (M, 4), positively oriented
-    triangles: np.ndarray  # (B, 3), outward oriented
-    labels: np.ndarray  # (B,) role label per boundary triangle
+def generate(box: Box, n: int) -> SimplexMesh:
+    """Level n of a box scene: the Kuhn split of its h-grid, or gmsh's tetrahedra."""
+    if box.diagonals != "unstructured":
+        return kuhn_box(box.lengths, n, box.role_of)
+    points, tetrahedra = unstructured_box(box, n)
+    tetrahedra = positively_oriented(points, tetrahedra)
+    return SimplexMesh(points, tetrahedra, *boundary_faces(points, tetrahedra, box.lengths, box.role_of))
 
 
 def grid_counts(lengths: tuple[float, float, float], n: int) -> tuple[int, int, int]:
@@ -47,7 +50,7 @@ def grid_counts(lengths: tuple[float, float, float], n: int) -> tuple[int, int, 
     return counts[0], counts[1], counts[2]
 
 
-def kuhn_box(lengths: tuple[float, float, float], n: int, role_of: RoleOf) -> BoxMesh:
+def kuhn_box(lengths: tuple[float, float, float], n: int, role_of: RoleOf) -> SimplexMesh:
     nx, ny, nz = grid_counts(lengths, n)
     axes = [np.linspace(0.0, length, count + 1) for length, count in zip(lengths, (nx, ny, nz))]
     gx, gy, gz = np.meshgrid(*axes, indexing="ij")
@@ -66,22 +69,9 @@ def kuhn_box(lengths: tuple[float, float, float], n: int, role_of: RoleOf) -> Bo
             corner[axis] += 1
             path.append(vertex(ci + corner[0], cj + corner[1], ck + corner[2]))
         tets.append(np.column_stack(path))
-    tetrahedra = orient_positive(points, np.vstack(tets))
-    triangles, labels = boundary_faces(points, tetrahedra, lengths, role_of)
-    return BoxMesh(points, tetrahedra, triangles, labels)
-
-
-def signed_volumes(points: np.ndarray, tets: np.ndarray) -> np.ndarray:
-    a, b, c, d = (points[tets[:, k]] for k in range(4))
-    return np.einsum("ij,ij->i", np.cross(b - a, c - a), d - a) / 6.0
-
-
-def orient_positive(points: np.ndarray, tets: np.ndarray) -> np.ndarray:
-    """FreeFEM's assembly needs positive volumes: swap two vertices of the others."""
-    tets = tets.copy()
-    negative = signed_volumes(points, tets) < 0
-    tets[negative, 2], tets[negative, 3] = tets[negative, 3], tets[negative, 2].copy()
-    return tets
+    # FreeFEM's assembly needs positive volumes: half the walks run the other way round.
+    tetrahedra = positively_oriented(points, np.vstack(tets))
+    return SimplexMesh(points, tetrahedra, *boundary_faces(points, tetrahedra, lengths, role_of))
 
 
 def boundary_faces(
@@ -95,7 +85,7 @@ def boundary_faces(
         for side, value in ((-1, 0.0), (1, lengths[axis])):
             on = np.all(np.abs(points[faces, axis] - value) < tol, axis=1)
             face = faces[on]
-            normal = np.cross(points[face[:, 1]] - points[face[:, 0]], points[face[:, 2]] - points[face[:, 0]])
+            normal = facet_normals(points, face)
             flip = np.sign(normal[:, axis]) != side
             face[flip, 1], face[flip, 2] = face[flip, 2], face[flip, 1].copy()
             centroids = points[face].mean(axis=1)
@@ -108,13 +98,30 @@ def boundary_faces(
     return np.vstack(triangles), np.concatenate(labels)
 
 
-def write_msh(mesh: BoxMesh, path: Path) -> None:
-    """MSH 2.2 (the only gmsh version FreeFEM reads), physical tags = labels."""
-    body = np.full(len(mesh.tetrahedra), BODY_LABEL)
-    cells = [("triangle", mesh.triangles), ("tetra", mesh.tetrahedra)]
-    data = {"gmsh:physical": [mesh.labels, body], "gmsh:geometrical": [mesh.labels, body]}
-    import meshio  # here, not at start-up: its import (95 ms, its CLI pulls in rich) would delay FreeFEM's start (freefem.launch warms it)
-    meshio.write(path, meshio.Mesh(mesh.points, cells, cell_data=data), file_format="gmsh22", binary=False)
+def unstructured_box(box: Box, n: int) -> tuple[np.ndarray, np.ndarray]:
+    """gmsh's tetrahedra of about size 1/n (Delaunay, one thread: the same mesh every time)
+    on the box cut into blocks at every patch edge, so that each boundary triangle lies in
+    one patch; (points, tetrahedra) as index arrays."""
+    try:
+        with session(threads=1):
+            gmsh.model.add("box")
+            x, y, z = (box.cuts(axis) for axis in range(3))
+            blocks = [(3, gmsh.model.occ.addBox(x0, y0, z0, x1 - x0, y1 - y0, z1 - z0))
+                      for x0, x1 in zip(x, x[1:]) for y0, y1 in zip(y, y[1:]) for z0, z1 in zip(z, z[1:])]
+            if len(blocks) > 1:
+                gmsh.model.occ.fragment(blocks[:1], blocks[1:])  # shared faces: one conforming mesh
+            gmsh.model.occ.synchronize()
+            gmsh.option.setNumber("Mesh.MeshSizeMax", 1.0 / n)
+            gmsh.option.setNumber("Mesh.Algorithm3D", 1)
+            gmsh.model.mesh.generate(3)
+            tags, coords, _ = gmsh.model.mesh.getNodes()
+            _, nodes = gmsh.model.mesh.getElementsByType(4)  # 4-node tetrahedra
+    except Exception as exc:  # gmsh raises a bare Exception with its own log text
+        raise MeshError(f"gmsh failed on the box at n={n}: {exc}") from None
+    index = np.full(int(tags.max()) + 1, -1)
+    index[tags.astype(int)] = np.arange(len(tags))
+    points = coords.reshape(-1, 3)
+    return points, index[nodes.astype(int)].reshape(-1, 4)
 
 
 def kuhn_weights(points: np.ndarray, grid: np.ndarray, spacing: float, at: np.ndarray) -> tuple[np.ndarray, np.ndarray]:

@@ -16,16 +16,14 @@ Levels (geometry.levels):
 Every level is checked: positive orientation (a surface or volume gmsh meshed the other way
 round is turned over), no inverted or degenerate element (refused, naming it), every
 boundary facet with a role and no labelled facet inside the body, one outward normal on all
-of Gamma_3 (a flat contact part), and the quality of the elements (min angle or dihedral,
-max aspect) for the level's summary.
+of Gamma_3 (a flat contact part); its elements' quality is measured where the level is built
+(harness/mesh/mesh.py).
 """
 
 from __future__ import annotations
 
 import itertools
 import math
-from dataclasses import dataclass
-from pathlib import Path
 
 import gmsh
 import numpy as np
@@ -35,13 +33,11 @@ from harness.core.contract import ROLE_LABELS
 from harness.core.errors import MeshError
 from harness.core.gmsh_api import session
 from harness.scene.gmsh_geometry import GmshGeometry
-from harness.mesh.simplex import (boundary_facets, label_measures, outward_normals, quality,
-                             signed_measures, turned_over)
+from harness.mesh.msh import ELEMENT_TYPE
+from harness.mesh.simplex import SimplexMesh, boundary_facets, outward_normals, signed_measures, turned_over
 
-BODY_LABEL = 1
-# gmsh's element type of a simplex of each dimension (1: line, 2: triangle, 4: tetrahedron).
-SIMPLEX = {1: 1, 2: 2, 3: 4}
-MESHIO_TYPE = {1: "line", 2: "triangle", 3: "tetra"}
+# A cell's name in messages.
+CELL_NAME = {2: "triangle", 3: "tetra"}
 # Signed measure below this fraction of (longest edge)^d: a flat element (round-off of a
 # well-shaped one is 1e-16; the worst gmsh element a study uses is above 1e-3).
 DEGENERATE = 1e-10
@@ -52,16 +48,6 @@ FLAT = 1e-8
 # A surface whose coarsest mesh nodes lie within this fraction of its extent from one plane is
 # flat (round-off of a turned plane is ~1e-16 of it); else curved, and gmsh splits the body.
 COPLANAR = 1e-9
-
-
-@dataclass(frozen=True)
-class SimplexMesh:
-    points: np.ndarray   # (N, d)
-    cells: np.ndarray    # (M, d + 1), positively oriented
-    facets: np.ndarray   # (B, d), each boundary facet once, outward oriented
-    labels: np.ndarray   # (B,) role label per facet
-    quality: dict[str, float]
-    regions: np.ndarray | None = None  # (M,) material region label per cell (harness/scene/regions.py)
 
 
 def split_count(geometry: GmshGeometry, n: int) -> int:
@@ -104,13 +90,9 @@ def generate(geometry: GmshGeometry, n: int) -> SimplexMesh:
     cells = oriented(points, cells, entity_of_cell, n)
     regions = region_labels(geometry, entity_of_cell)
     facets, labels = labelled_boundary(points, cells, {tuple(sorted(index[list(f)])): r for f, r in named.items()}, n)
-    if refinements > by_gmsh:
-        fine = tet_split.refine(tet_split.TetMesh(points, cells, facets, labels), refinements - by_gmsh)
-        points, cells, facets, labels = fine.points, fine.cells, fine.facets, fine.labels
-        if regions is not None:  # each split puts a tetrahedron's 8 children in its place, in order
-            regions = np.repeat(regions, 8 ** (refinements - by_gmsh))
-    check_flat_contact(points, facets, labels, n)
-    return SimplexMesh(points, cells, facets, labels, quality(points, cells), regions)
+    mesh = tet_split.refine(SimplexMesh(points, cells, facets, labels, regions), refinements - by_gmsh)
+    check_flat_contact(mesh.points, mesh.facets, mesh.labels, n)
+    return mesh
 
 
 def region_labels(geometry: GmshGeometry, entity_of_cell: np.ndarray) -> np.ndarray | None:
@@ -148,7 +130,7 @@ def read_cells(d: int) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
     for _, entity in gmsh.model.getEntities(d):
         types, _, nodes = gmsh.model.mesh.getElements(d, entity)
         for kind, block in zip(types, nodes):
-            if int(kind) != SIMPLEX[d]:
+            if int(kind) != ELEMENT_TYPE[d]:
                 name = gmsh.model.mesh.getElementProperties(int(kind))[0]
                 raise MeshError(f"gmsh made {name} elements; only first-order triangles (2D) and tetrahedra "
                                 "(3D) are solved (no Recombine, Mesh.ElementOrder = 1)")
@@ -174,7 +156,7 @@ def read_named_facets(geometry: GmshGeometry, points: np.ndarray) -> dict[tuple[
         for entity in gmsh.model.getEntitiesForPhysicalGroup(dim, tag):
             types, _, nodes = gmsh.model.mesh.getElements(d - 1, int(entity))
             for kind, block in zip(types, nodes):
-                if int(kind) != SIMPLEX[d - 1]:
+                if int(kind) != ELEMENT_TYPE[d - 1]:
                     continue
                 for facet in np.asarray(block, dtype=np.int64).reshape(-1, d):
                     key = tuple(sorted(int(t) for t in facet))
@@ -206,7 +188,7 @@ def oriented(points: np.ndarray, cells: np.ndarray, owners: np.ndarray, n: int) 
     longest = np.max([np.linalg.norm(points[cells[:, i]] - points[cells[:, j]], axis=1)
                       for i, j in itertools.combinations(range(d + 1), 2)], axis=0)
     flat = np.abs(measure) <= DEGENERATE * longest**d
-    kind = MESHIO_TYPE[d]
+    kind = CELL_NAME[d]
     if flat.any():
         i = int(np.flatnonzero(flat)[0])
         raise MeshError(f"n={n}: {kind} {i + 1} at {place(points[cells[i]])} is degenerate "
@@ -263,21 +245,3 @@ def check_flat_contact(points: np.ndarray, facets: np.ndarray, labels: np.ndarra
         where = place(points[facets[on][worst]])
         raise MeshError(f"n={n}: the contact part is not flat: the facet at {where} turns {angle[worst]:.3g} rad from "
                         "the mean normal (curved contact parts are not supported)")
-
-
-def write_msh(mesh: SimplexMesh, path: Path) -> None:
-    """MSH 2.2 (the only gmsh version FreeFEM reads), physical tags = role labels, body 1."""
-    d = mesh.cells.shape[1] - 1
-    points = np.zeros((len(mesh.points), 3))
-    points[:, :d] = mesh.points
-    body = mesh.regions if mesh.regions is not None else np.full(len(mesh.cells), BODY_LABEL)
-    cells = [(MESHIO_TYPE[d - 1], mesh.facets), (MESHIO_TYPE[d], mesh.cells)]
-    data = {"gmsh:physical": [mesh.labels, body], "gmsh:geometrical": [mesh.labels, body]}
-    import meshio  # here, not at start-up: its import (95 ms, its CLI pulls in rich) would delay FreeFEM's start (freefem.launch warms it)
-    meshio.write(path, meshio.Mesh(points, cells, cell_data=data), file_format="gmsh22", binary=False)
-
-
-def role_measures(mesh: SimplexMesh) -> dict[str, float]:
-    """Length (2D) or area (3D) of each role's facets."""
-    measures = label_measures(mesh.points, mesh.facets, mesh.labels)
-    return {role: measures[label] for role, label in ROLE_LABELS.items() if label in measures}

@@ -1,4 +1,7 @@
-"""Build the scene's structured triangle mesh at level n (h = 1/n) with gmsh, MSH 2.2.
+"""One level's mesh file for any scene: the level from its generator (a SimplexMesh: the
+rectangle's in harness/mesh/rectangle_mesh.py, the box's in box_mesh.py, a gmsh scene's in
+gmsh_mesh.py), checked, then written as MSH 2.2 (harness/mesh/msh.py) only where its bytes
+change; and the nested families of coarser levels, and graded copies of a level.
 
 gmsh keeps global state and is not thread-safe: call `build_mesh` from one thread at a time
 (the study makes all meshes in the main thread before any FreeFEM run starts).
@@ -8,29 +11,24 @@ from __future__ import annotations
 
 import os
 import sys
-from dataclasses import dataclass, replace
+from dataclasses import replace
 from pathlib import Path
 from typing import Callable, Sequence
 
-import gmsh
 import numpy as np
 
 from harness.core.atomic import sibling_temp, write_atomic
 from harness.core.errors import EnvironmentFault, MeshError
 from harness.core.faults import disk_full, fault
 from harness.core.guards import mesh_file_bytes, need_disk
+from harness.mesh import box_mesh, gmsh_mesh, rectangle_mesh
 from harness.mesh.mesh_check import MeshSummary, check_arrays
-from harness.scene.schema import ROLE_LABELS
-from harness.scene.segments import Geometry
-from harness.mesh.simplex import quality_warning
+from harness.mesh.msh import AS_GMSH, AS_MESHIO, MshStyle, write_msh
+from harness.mesh.simplex import SimplexMesh, quality, quality_warning, role_measures
 from harness.scene.box import Box
-from harness.mesh import box_mesh, gmsh_mesh
 from harness.scene.gmsh_geometry import GmshGeometry
-from harness.core.gmsh_api import GMSH, session  # noqa: F401  (GMSH re-exported: whoever meshes from a thread holds it)
-
-# gmsh's transfinite arrangement that cuts each cell along the requested diagonal.
-ARRANGEMENT = {"SW-NE": "Right", "NW-SE": "Left"}
-BODY_LABEL = 1
+from harness.scene.segments import Geometry
+from harness.core.gmsh_api import GMSH  # noqa: F401  (re-exported: whoever meshes from a thread holds it)
 
 
 def mesh_path(directory: Path, n: int) -> Path:
@@ -72,17 +70,42 @@ def build_mesh(geometry: Geometry | Box | GmshGeometry, n: int, directory: Path,
     """Write mesh_n<n>.msh into `directory` (only replacing it if the bytes change) and
     return its checked summary; `warn`: say when its quality is poor (the study's own levels,
     not the coarser meshes a run asks for again)."""
-    if isinstance(geometry, Box):
-        return build_box_mesh(geometry, n, directory)
-    if isinstance(geometry, GmshGeometry):
-        return build_gmsh_mesh(geometry, n, directory, warn)
-    cells = {} if geometry.diagonals == "unstructured" else grid_cells(geometry, n)
-    level = generate_rectangle(geometry, cells, n)
-    # Checked in memory, before writing: re-reading the file took 41 % of the finest mesh's
-    # time at n = 64.
-    summary = check_arrays(level.points, level.triangles, level.lines, level.labels, geometry, n)
-    target = write_level(lambda tmp: write_rectangle_msh(level, tmp), geometry, n, directory)
+    level, summary, style = checked_level(geometry, n, warn)
+    target = write_level(lambda tmp: write_msh(level, tmp, style), geometry, n, directory)
     return replace(summary, path=target)
+
+
+def checked_level(geometry: Geometry | Box | GmshGeometry, n: int,
+                  warn: bool) -> tuple[SimplexMesh, MeshSummary, MshStyle]:
+    """Level n from its scene's generator, checked in memory before it is written (re-reading
+    the file took 41 % of the finest rectangle's time at n = 64), its summary (path left
+    empty) and the style its file has always had (harness/mesh/msh.py)."""
+    if isinstance(geometry, Box):
+        level = box_mesh.generate(geometry, n)
+        areas = check_role_areas(level, geometry, n)
+        return level, MeshSummary(Path(), n, len(level.points), len(level.cells), areas), AS_MESHIO
+    if isinstance(geometry, GmshGeometry):
+        level = gmsh_mesh.generate(geometry, n)
+        measured = quality(level.points, level.cells)
+        worse = quality_warning(measured) if warn else None
+        if worse:
+            print(f"warning: mesh n={n} of {geometry.file.name}: {worse}: expect larger errors and slower convergence "
+                  "at every level split from it; mesh the coarsest level finer or better (gmsh's Mesh.Optimize, "
+                  "Mesh.OptimizeNetgen)", file=sys.stderr, flush=True)
+        summary = MeshSummary(Path(), n, len(level.points), len(level.cells), role_measures(level), measured)
+        return level, summary, AS_MESHIO
+    level = rectangle_mesh.generate(geometry, n)
+    return level, check_arrays(level.points, level.cells, level.facets, level.labels, geometry, n), AS_GMSH
+
+
+def check_role_areas(level: SimplexMesh, box: Box, n: int) -> dict[str, float]:
+    """Each role's area, which must be its patches' area (role_lengths holds areas in 3D)."""
+    areas = role_measures(level)
+    expected = box.role_areas()
+    for role in set(areas) | set(expected):
+        if not np.isclose(areas.get(role, 0.0), expected.get(role, 0.0), rtol=1e-9, atol=1e-12):
+            raise MeshError(f"mesh n={n}: role {role} covers {areas.get(role, 0.0):.6g}, its patches {expected.get(role, 0.0):.6g}")
+    return areas
 
 
 def remove_partial_meshes(directory: Path, pids: list[int]) -> None:
@@ -90,197 +113,6 @@ def remove_partial_meshes(directory: Path, pids: list[int]) -> None:
     for pid in pids:
         for partial in directory.glob(f".mesh_n*.{pid}-*"):
             partial.unlink(missing_ok=True)
-
-
-def grid_cells(geometry: Geometry, n: int) -> dict[float, int]:
-    """Number of cells along each breakpoint coordinate and the height; each must be a
-    whole number of h = 1/n or the strips cannot be structured."""
-    cells = {}
-    for x in geometry.breakpoints() + (geometry.height,):
-        count = round(x * n)
-        if abs(count - x * n) > 1e-9 * max(1.0, x * n):  # round-off of x*n only
-            raise MeshError(f"n={n}: {x} is not a multiple of h = 1/{n}")
-        cells[x] = count
-    if cells[geometry.height] == 0:
-        raise MeshError(f"n={n}: height {geometry.height} is below h = 1/{n}")
-    return cells
-
-
-@dataclass(frozen=True)
-class RectangleMesh:
-    """A rectangle scene's level as gmsh made it, held in memory in gmsh's own order (so
-    FreeFEM numbers nodes, edges and triangles as it did from gmsh's file)."""
-
-    points: np.ndarray      # (N, 2), row k = gmsh node tag k + 1
-    lines: np.ndarray       # (B, 2) boundary edges, curve by curve
-    labels: np.ndarray      # (B,) their role labels (physical tags)
-    curves: np.ndarray      # (B,) their gmsh curve (elementary tag)
-    triangles: np.ndarray   # (M, 3), surface by surface
-    surfaces: np.ndarray    # (M,) their gmsh surface
-
-
-def generate_rectangle(geometry: Geometry, cells: dict[float, int], n: int) -> RectangleMesh:
-    """The level-n mesh: gmsh's transfinite strips snapped onto the h-lattice, or (no
-    `cells`) its unstructured triangles distorted. The nodes are moved in numpy, not by
-    gmsh's per-node setNode, which took 44 % of the finest mesh's time at n = 64."""
-    try:
-        with session():
-            gmsh.model.add("scene")
-            add_strips(geometry, cells, size=0.0 if cells else 1.0 / n)
-            gmsh.model.mesh.generate(2)
-            mesh, inner = read_rectangle()
-    except MeshError:
-        raise
-    except Exception as exc:  # gmsh raises a bare Exception with its own log text
-        raise MeshError(f"gmsh failed: {exc}") from None
-    points = snap_to_lattice(mesh.points, n) if cells else distort(mesh.points, mesh.triangles, inner, n)
-    return replace(mesh, points=points)
-
-
-def read_rectangle() -> tuple[RectangleMesh, np.ndarray]:
-    """gmsh's mesh in the order its MSH 2.2 writer uses (nodes by tag, then each physical
-    curve's edges, then each surface's triangles), and the nodes inside the surfaces (in
-    gmsh's order: distort's random shifts follow it)."""
-    tags, coords, _ = gmsh.model.mesh.getNodes()
-    tags = tags.astype(np.int64)
-    if tags.min() != 1 or tags.max() != len(tags):
-        raise MeshError("gmsh numbered its nodes with gaps")
-    points = np.zeros((len(tags), 3))
-    points[tags - 1] = coords.reshape(-1, 3)
-    lines, labels, curves = [], [], []
-    for _, curve in gmsh.model.getEntities(1):
-        for group in gmsh.model.getPhysicalGroupsForEntity(1, curve):
-            _, _, nodes = gmsh.model.mesh.getElements(1, curve)
-            block = np.asarray(nodes[0], dtype=np.int64).reshape(-1, 2) - 1
-            lines.append(block)
-            labels.append(np.full(len(block), group))
-            curves.append(np.full(len(block), curve))
-    triangles, surfaces = [], []
-    for _, surface in gmsh.model.getEntities(2):
-        _, _, nodes = gmsh.model.mesh.getElements(2, surface)
-        block = np.asarray(nodes[0], dtype=np.int64).reshape(-1, 3) - 1
-        triangles.append(block)
-        surfaces.append(np.full(len(block), surface))
-    inner, _, _ = gmsh.model.mesh.getNodes(2, -1, includeBoundary=False)
-    mesh = RectangleMesh(points[:, :2], np.vstack(lines), np.concatenate(labels), np.concatenate(curves),
-                         np.vstack(triangles), np.concatenate(surfaces))
-    return mesh, inner.astype(np.int64) - 1
-
-
-def write_rectangle_msh(mesh: RectangleMesh, target: Path) -> None:
-    """MSH 2.2 byte for byte as gmsh's own writer makes it (coordinates %.16g, physical and
-    elementary tags; tests/test_mesh.py compares), so FreeFEM reads what it read from gmsh.
-    Each section is one printf-style format over the whole array: meshio's writer formats
-    line by line and took 0.36 s of the 0.43 s of n = 64's mesh."""
-    names = sorted([(1, int(label), role) for role, label in ROLE_LABELS.items() if (mesh.labels == label).any()]
-                   + [(2, BODY_LABEL, "body")])
-    lines, triangles = len(mesh.lines), len(mesh.triangles)
-    nodes = np.column_stack([np.arange(1, len(mesh.points) + 1), mesh.points])
-    edges = np.column_stack([np.arange(1, lines + 1), mesh.labels, mesh.curves, mesh.lines + 1])
-    cells = np.column_stack([np.arange(lines + 1, lines + triangles + 1), np.full(triangles, BODY_LABEL),
-                             mesh.surfaces, mesh.triangles + 1])
-    text = "".join([
-        "$MeshFormat\n2.2 0 8\n$EndMeshFormat\n",
-        f"$PhysicalNames\n{len(names)}\n", "".join(f'{d} {t} "{name}"\n' for d, t, name in names), "$EndPhysicalNames\n",
-        f"$Nodes\n{len(nodes)}\n", ("%d %.16g %.16g 0\n" * len(nodes)) % tuple(nodes.ravel().tolist()), "$EndNodes\n",
-        f"$Elements\n{lines + triangles}\n",
-        ("%d 1 2 %d %d %d %d\n" * lines) % tuple(edges.ravel().tolist()),
-        ("%d 2 2 %d %d %d %d %d\n" * triangles) % tuple(cells.ravel().tolist()),
-        "$EndElements\n",
-    ])
-    target.write_text(text)
-
-
-def add_strips(geometry: Geometry, cells: dict[float, int], size: float = 0.0) -> None:
-    """One transfinite surface per vertical strip between consecutive breakpoints; with no
-    `cells`, plain surfaces that gmsh meshes unstructured with triangles of about `size`."""
-    geo = gmsh.model.geo
-    xs, height = geometry.breakpoints(), geometry.height
-    low = [geo.addPoint(x, 0.0, 0.0, size) for x in xs]
-    high = [geo.addPoint(x, height, 0.0, size) for x in xs]
-    verticals = [geo.addLine(a, b) for a, b in zip(low, high)]
-    roles: dict[str, list[int]] = {role: [] for role in ROLE_LABELS}
-    roles[geometry.left].append(verticals[0])
-    roles[geometry.right].append(verticals[-1])
-    surfaces = []
-    for i in range(len(xs) - 1):
-        bottom = geo.addLine(low[i], low[i + 1])
-        top = geo.addLine(high[i + 1], high[i])
-        # Counter-clockwise loop, so the triangles come out positively oriented.
-        loop = geo.addCurveLoop([bottom, verticals[i + 1], top, -verticals[i]])
-        surface = geo.addPlaneSurface([loop])
-        if cells:
-            across = cells[xs[i + 1]] - cells[xs[i]] + 1
-            for line in (bottom, top):
-                geo.mesh.setTransfiniteCurve(line, across)
-            geo.mesh.setTransfiniteSurface(
-                surface, ARRANGEMENT[geometry.diagonals], [low[i], low[i + 1], high[i + 1], high[i]]
-            )
-        mid = 0.5 * (xs[i] + xs[i + 1])
-        roles[role_at(geometry.bottom, mid)].append(bottom)
-        roles[role_at(geometry.top, mid)].append(top)
-        surfaces.append(surface)
-    for line in verticals if cells else ():
-        geo.mesh.setTransfiniteCurve(line, cells[height] + 1)
-    geo.synchronize()
-    for role, curves in roles.items():
-        if curves:
-            gmsh.model.addPhysicalGroup(1, curves, ROLE_LABELS[role], name=role)
-    gmsh.model.addPhysicalGroup(2, surfaces, BODY_LABEL, name="body")
-
-
-def role_at(segments, x: float) -> str:
-    return next(s.role for s in segments if s.x0 < x < s.x1)
-
-
-def snap_to_lattice(points: np.ndarray, n: int) -> np.ndarray:
-    """Every node exactly on the h-lattice. gmsh's transfinite nodes carry ~1e-12 round-off;
-    exact lattice nodes make level n's nodes exactly nodes of level 2n."""
-    snapped = np.round(points * n) / n
-    # Anything beyond round-off means the mesh is not the structured lattice we asked for.
-    if np.abs(snapped - points).max() > 1e-6 / n:
-        raise MeshError(f"n={n}: gmsh placed nodes off the h-lattice")
-    return snapped
-
-
-def distort(points: np.ndarray, tri: np.ndarray, inner: np.ndarray, n: int, fraction: float = 0.3) -> np.ndarray:
-    """Shift every interior node by a pseudo-random vector of up to `fraction` h per
-    coordinate (seeded by n: the same mesh every time); a node whose shift would invert a
-    triangle keeps its place. Boundary nodes stay, so the boundary roles are exact."""
-    moved = points.copy()
-    moved[inner] += np.random.default_rng(n).uniform(-fraction, fraction, (len(inner), 2)) / n
-    while True:
-        a, b, c = (moved[tri[:, k]] for k in range(3))
-        area = (b[:, 0] - a[:, 0]) * (c[:, 1] - a[:, 1]) - (c[:, 0] - a[:, 0]) * (b[:, 1] - a[:, 1])
-        bad = np.unique(tri[area <= 0.05 / n**2])  # inverted or nearly flat: undo its nodes
-        bad = bad[np.isin(bad, inner) & (moved[bad] != points[bad]).any(axis=1)]
-        if not len(bad):
-            return moved
-        moved[bad] = points[bad]
-
-
-def build_box_mesh(box: Box, n: int, directory: Path) -> MeshSummary:
-    """The Kuhn tetrahedral mesh of a box scene (harness/mesh/box_mesh.py), checked: the area of
-    each role's triangles equals its patches' area (role_lengths holds areas in 3D)."""
-    if box.diagonals == "unstructured":
-        points, tetrahedra = unstructured_box(box, n)
-        tetrahedra = box_mesh.orient_positive(points, tetrahedra)
-        triangles, labels = box_mesh.boundary_faces(points, tetrahedra, box.lengths, box.role_of)
-        mesh = box_mesh.BoxMesh(points, tetrahedra, triangles, labels)
-    else:
-        mesh = box_mesh.kuhn_box(box.lengths, n, box.role_of)
-    areas = dict.fromkeys(ROLE_LABELS, 0.0)
-    p = mesh.points[mesh.triangles]
-    tri_area = 0.5 * np.linalg.norm(np.cross(p[:, 1] - p[:, 0], p[:, 2] - p[:, 0]), axis=1)
-    for role, label in ROLE_LABELS.items():
-        areas[role] = float(tri_area[mesh.labels == label].sum())
-    areas = {role: a for role, a in areas.items() if a > 0}
-    expected = box.role_areas()
-    for role in set(areas) | set(expected):
-        if not np.isclose(areas.get(role, 0.0), expected.get(role, 0.0), rtol=1e-9, atol=1e-12):
-            raise MeshError(f"mesh n={n}: role {role} covers {areas.get(role, 0.0):.6g}, its patches {expected.get(role, 0.0):.6g}")
-    target = write_level(lambda tmp: box_mesh.write_msh(mesh, tmp), box, n, directory)
-    return MeshSummary(path=target, n=n, nodes=len(mesh.points), triangles=len(mesh.tetrahedra), role_lengths=areas)
 
 
 def write_level(write: Callable[[Path], None], geometry: Geometry | Box | GmshGeometry, n: int,
@@ -302,46 +134,6 @@ def write_level(write: Callable[[Path], None], geometry: Geometry | Box | GmshGe
     finally:
         tmp.unlink(missing_ok=True)
     return target
-
-
-def build_gmsh_mesh(geometry: GmshGeometry, n: int, directory: Path, warn: bool = True) -> MeshSummary:
-    """Level n of a scene drawn in gmsh (harness/mesh/gmsh_mesh.py), its labels the roles'; with
-    `warn`, one warning line when its quality is below simplex.QUALITY_FLOORS."""
-    mesh = gmsh_mesh.generate(geometry, n)
-    target = write_level(lambda tmp: gmsh_mesh.write_msh(mesh, tmp), geometry, n, directory)
-    worse = quality_warning(mesh.quality) if warn else None
-    if worse:
-        print(f"warning: mesh n={n} of {geometry.file.name}: {worse}: expect larger errors and slower convergence "
-              "at every level split from it; mesh the coarsest level finer or better (gmsh's Mesh.Optimize, "
-              "Mesh.OptimizeNetgen)", file=sys.stderr, flush=True)
-    return MeshSummary(path=target, n=n, nodes=len(mesh.points), triangles=len(mesh.cells),
-                       role_lengths=gmsh_mesh.role_measures(mesh), quality=mesh.quality)
-
-
-def unstructured_box(box: Box, n: int) -> tuple[np.ndarray, np.ndarray]:
-    """gmsh's tetrahedra of about size 1/n (Delaunay, one thread: the same mesh every time)
-    on the box cut into blocks at every patch edge, so that each boundary triangle lies in
-    one patch; (points, tetrahedra) as index arrays."""
-    try:
-        with session(threads=1):
-            gmsh.model.add("box")
-            x, y, z = (box.cuts(axis) for axis in range(3))
-            blocks = [(3, gmsh.model.occ.addBox(x0, y0, z0, x1 - x0, y1 - y0, z1 - z0))
-                      for x0, x1 in zip(x, x[1:]) for y0, y1 in zip(y, y[1:]) for z0, z1 in zip(z, z[1:])]
-            if len(blocks) > 1:
-                gmsh.model.occ.fragment(blocks[:1], blocks[1:])  # shared faces: one conforming mesh
-            gmsh.model.occ.synchronize()
-            gmsh.option.setNumber("Mesh.MeshSizeMax", 1.0 / n)
-            gmsh.option.setNumber("Mesh.Algorithm3D", 1)
-            gmsh.model.mesh.generate(3)
-            tags, coords, _ = gmsh.model.mesh.getNodes()
-            _, nodes = gmsh.model.mesh.getElementsByType(4)  # 4-node tetrahedra
-    except Exception as exc:  # gmsh raises a bare Exception with its own log text
-        raise MeshError(f"gmsh failed on the box at n={n}: {exc}") from None
-    index = np.full(int(tags.max()) + 1, -1)
-    index[tags.astype(int)] = np.arange(len(tags))
-    points = coords.reshape(-1, 3)
-    return points, index[nodes.astype(int)].reshape(-1, 4)
 
 
 def graded_coordinate(t: np.ndarray, focus: Sequence[float], power: float) -> np.ndarray:

@@ -11,8 +11,9 @@ import numpy as np
 if TYPE_CHECKING:
     import meshio
 
+from harness.core.contract import ROLE_LABELS
 from harness.core.errors import MeshError
-from harness.scene.schema import ROLE_LABELS
+from harness.mesh.simplex import label_measures, signed_measures
 from harness.scene.segments import Geometry
 
 
@@ -58,11 +59,6 @@ def cells_of(mesh: meshio.Mesh, kind: str) -> np.ndarray:
     return np.concatenate(blocks)
 
 
-def signed_areas(points: np.ndarray, triangles: np.ndarray) -> np.ndarray:
-    a, b, c = (points[triangles[:, i]] for i in range(3))
-    return 0.5 * ((b[:, 0] - a[:, 0]) * (c[:, 1] - a[:, 1]) - (c[:, 0] - a[:, 0]) * (b[:, 1] - a[:, 1]))
-
-
 def check_unique_nodes(points: np.ndarray, where: str, h: float) -> None:
     # Distinct nodes are at least h apart; anything closer than h/1000 is the same node twice.
     keys = np.round(points / (h * 1e-3)).astype(np.int64)
@@ -74,7 +70,7 @@ def check_unique_nodes(points: np.ndarray, where: str, h: float) -> None:
 
 
 def check_orientation(points: np.ndarray, triangles: np.ndarray, where: str) -> None:
-    bad = int(np.count_nonzero(signed_areas(points, triangles) <= 0))
+    bad = int(np.count_nonzero(signed_measures(points, triangles) <= 0))
     if bad:
         raise MeshError(f"{where}: {bad} triangles are not positively oriented")
 
@@ -94,12 +90,11 @@ def check_diagonals(points: np.ndarray, triangles: np.ndarray, diagonals: str, w
 
 
 def check_roles(lines: np.ndarray, tags: np.ndarray, points: np.ndarray, geometry: Geometry, where: str) -> dict[str, float]:
-    seg = points[lines[:, 1]] - points[lines[:, 0]]
-    length = np.hypot(seg[:, 0], seg[:, 1])
+    measured = label_measures(points, lines, tags)
     expected = geometry.role_lengths()
     found = {}
     for role, label in ROLE_LABELS.items():
-        total = float(length[tags == label].sum())
+        total = measured.get(label, 0.0)
         want = expected.get(role, 0.0)
         # Lengths are sums of at most a few hundred edges of exact length h: 1e-9 is round-off.
         if abs(total - want) > 1e-9 * max(1.0, want):

@@ -1,16 +1,47 @@
-"""General geometry of simplicial meshes (triangles in 2D, tetrahedra in 3D), any generator's:
-signed measures and orientation, the edges and boundary facets of a cell array, facet
-measures and outward normals, and the elements' quality (angles, dihedral angles, aspect).
+"""Simplicial meshes (triangles in 2D, tetrahedra in 3D): the one record every generator
+returns (`SimplexMesh`), and their general geometry: signed measures and orientation, the
+edges and boundary facets of a cell array, facet measures, outward normals and each role's
+measure, and the elements' quality (angles, dihedral angles, aspect).
 
-Arrays only: `points` (N, d), `cells` (M, d + 1), `facets` (B, d), all index arrays int64.
+The functions take arrays: `points` (N, d), `cells` (M, d + 1), `facets` (B, d), index arrays
+int64.
 """
 
 from __future__ import annotations
 
 import itertools
 import math
+from dataclasses import dataclass
 
 import numpy as np
+
+from harness.core.contract import BODY_LABEL, ROLE_LABELS
+
+
+@dataclass(frozen=True)
+class SimplexMesh:
+    """One mesh level as every generator returns it (the rectangle's, the box's, a gmsh
+    scene's, the adaptive bisections'), in the order its file is written: node k is row k,
+    and the facets come before the cells."""
+
+    points: np.ndarray                # (N, d)
+    cells: np.ndarray                 # (M, d + 1); generators orient them positively, the
+                                      # bisections keep their refinement edge first instead
+    facets: np.ndarray                # (B, d) the labelled boundary facets, outward oriented
+    labels: np.ndarray                # (B,) each facet's role label (harness/core/contract.py)
+    regions: np.ndarray | None = None  # (M,) each cell's material region label; None: one body
+    # gmsh's elementary entity of each facet and cell, where the level comes from gmsh's own
+    # drawing (the rectangle's curves and strips): its file names them as gmsh's did.
+    facet_entities: np.ndarray | None = None
+    cell_entities: np.ndarray | None = None
+
+    @property
+    def dimension(self) -> int:
+        return self.cells.shape[1] - 1
+
+    def cell_labels(self) -> np.ndarray:
+        """Each cell's physical tag: its region's label, or BODY_LABEL for a one-region body."""
+        return self.regions if self.regions is not None else np.full(len(self.cells), BODY_LABEL)
 
 # The facet opposite vertex k of a positively oriented cell, its vertices in the order that
 # makes its normal point out of the cell.
@@ -98,6 +129,12 @@ def label_measures(points: np.ndarray, facets: np.ndarray, labels: np.ndarray) -
     """Total length (2D) or area (3D) of the facets of each label."""
     size = facet_measures(points, facets)
     return {int(label): float(size[labels == label].sum()) for label in np.unique(labels)}
+
+
+def role_measures(mesh: SimplexMesh) -> dict[str, float]:
+    """Length (2D) or area (3D) of each role's facets, for the roles the mesh has."""
+    measures = label_measures(mesh.points, mesh.facets, mesh.labels)
+    return {role: measures[label] for role, label in ROLE_LABELS.items() if label in measures}
 
 
 def triangle_angles(points: np.ndarray, cells: np.ndarray) -> np.ndarray:

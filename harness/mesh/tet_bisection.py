@@ -18,26 +18,17 @@ the chords of the first mesh: new nodes are midpoints, not points on the curve.
 
 from __future__ import annotations
 
-from dataclasses import dataclass
-
 import numpy as np
 
-from harness.mesh.simplex import EDGES, positively_oriented
+from harness.mesh.simplex import EDGES, SimplexMesh, positively_oriented
 
 SPAN = np.int64(1) << 31  # node indices stay below 2^31: one int64 key per edge or face part
 
 
-@dataclass(frozen=True)
-class TetMesh:
-    points: np.ndarray  # (N, 3)
-    cells: np.ndarray   # (M, 4)
-    facets: np.ndarray  # (B, 3) boundary triangles
-    labels: np.ndarray  # (B,) their role labels
-
-
-def start(points: np.ndarray, cells: np.ndarray, facets: np.ndarray, labels: np.ndarray) -> TetMesh:
-    return TetMesh(points[:, :3].astype(float), cells.astype(np.int64), facets.astype(np.int64),
-                   labels.astype(np.int64))
+def start(points: np.ndarray, cells: np.ndarray, facets: np.ndarray, labels: np.ndarray,
+          regions: np.ndarray | None = None) -> SimplexMesh:
+    return SimplexMesh(points[:, :3].astype(float), cells.astype(np.int64), facets.astype(np.int64),
+                       labels.astype(np.int64), regions)
 
 
 def edge_key(a: np.ndarray, b: np.ndarray) -> np.ndarray:
@@ -76,10 +67,10 @@ def cell_edge_keys(cells: np.ndarray) -> np.ndarray:
     return np.column_stack([edge_key(cells[:, i], cells[:, j]) for i, j in EDGES[3]])
 
 
-def refine(mesh: TetMesh, marked: np.ndarray) -> TetMesh:
+def refine(mesh: SimplexMesh, marked: np.ndarray) -> SimplexMesh:
     """`mesh` with the marked tetrahedra (a boolean mask) bisected at their longest edges, and as
-    many others as conformity needs."""
-    points, cells = mesh.points, mesh.cells
+    many others as conformity needs; each child lies in its parent's region."""
+    points, cells, regions = mesh.points, mesh.cells, mesh.cell_labels()
     facets, labels = mesh.facets, mesh.labels
     ref, _, _ = refinement_keys(points, cells)
     pending = np.unique(ref[np.asarray(marked, dtype=bool)])
@@ -108,8 +99,9 @@ def refine(mesh: TetMesh, marked: np.ndarray) -> TetMesh:
         two[np.arange(len(rows)), j[rows]] = m
         facets, labels = _halve_facets(facets, labels, cells[rows], i[rows], j[rows], m)
         cells = np.vstack([cells[~split], one, two])
+        regions = np.concatenate([regions[~split], regions[rows], regions[rows]])
         pending = np.intersect1d(pending, cell_edge_keys(cells).ravel())
-    return TetMesh(points, cells, facets, labels)
+    return SimplexMesh(points, cells, facets, labels, regions if mesh.regions is not None else None)
 
 
 def _halve_facets(facets: np.ndarray, labels: np.ndarray, split: np.ndarray, i: np.ndarray, j: np.ndarray,
@@ -140,7 +132,7 @@ def _halve_facets(facets: np.ndarray, labels: np.ndarray, split: np.ndarray, i: 
             np.concatenate([labels[keep], np.array(halves_labels, dtype=np.int64)]))
 
 
-def uniform(mesh: TetMesh, times: int = 3) -> TetMesh:
+def uniform(mesh: SimplexMesh, times: int = 3) -> SimplexMesh:
     """`times` rounds, each bisecting every tetrahedron once at least (the closure may cut some
     twice): 3 rounds make 8 or more children of each."""
     for _ in range(times):

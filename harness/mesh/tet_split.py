@@ -19,11 +19,9 @@ coarse tetrahedron is the union of its children, so the levels nest.
 
 from __future__ import annotations
 
-from dataclasses import dataclass
-
 import numpy as np
 
-from harness.mesh.simplex import EDGES, positively_oriented, unique_edges
+from harness.mesh.simplex import EDGES, SimplexMesh, positively_oriented, unique_edges
 
 # Local numbering of a tetrahedron's 10 nodes after the split: its vertices 0-3, then the
 # midpoints of its edges in the order of simplex.EDGES: 4 = 01, 5 = 02, 6 = 03, 7 = 12,
@@ -42,14 +40,6 @@ EQUATORS = ((MID[0, 2], MID[0, 3], MID[1, 3], MID[1, 2]),
 TRIANGLE_CHILDREN = ((0, 3, 5), (3, 1, 4), (5, 4, 2), (3, 4, 5))
 
 
-@dataclass(frozen=True)
-class TetMesh:
-    points: np.ndarray   # (N, 3)
-    cells: np.ndarray    # (M, 4), positively oriented
-    facets: np.ndarray   # (B, 3) labelled boundary triangles, outward oriented
-    labels: np.ndarray   # (B,)
-
-
 def shortest_diagonals(nodes: np.ndarray) -> np.ndarray:
     """(M,) which of DIAGONALS is shortest in each octahedron; `nodes` (M, 10, 3) the local
     nodes' coordinates. A tie goes to the first, so the result does not depend on round-off
@@ -66,9 +56,10 @@ def local_children(diagonal: np.ndarray) -> np.ndarray:
     return table[diagonal]
 
 
-def split(mesh: TetMesh) -> TetMesh:
+def split(mesh: SimplexMesh) -> SimplexMesh:
     """One red refinement: children of every tetrahedron along its octahedron's shortest
-    diagonal, the new nodes (edge midpoints) after the old ones, edge by edge in sorted order."""
+    diagonal, the new nodes (edge midpoints) after the old ones, edge by edge in sorted order;
+    a tetrahedron's 8 children take its place, in order, and its region."""
     edges, cell_edges = unique_edges(mesh.cells)
     offset = len(mesh.points)
     points = np.vstack([mesh.points, 0.5 * (mesh.points[edges[:, 0]] + mesh.points[edges[:, 1]])])
@@ -76,7 +67,8 @@ def split(mesh: TetMesh) -> TetMesh:
     children = local_children(shortest_diagonals(points[local]))
     cells = np.take_along_axis(local[:, None, :], children, axis=2).reshape(-1, 4)
     facets = split_triangles(mesh.facets, edges, offset)
-    return TetMesh(points, positively_oriented(points, cells), facets, np.repeat(mesh.labels, 4))
+    regions = np.repeat(mesh.regions, 8) if mesh.regions is not None else None
+    return SimplexMesh(points, positively_oriented(points, cells), facets, np.repeat(mesh.labels, 4), regions)
 
 
 def split_triangles(facets: np.ndarray, edges: np.ndarray, offset: int) -> np.ndarray:
@@ -93,7 +85,7 @@ def split_triangles(facets: np.ndarray, edges: np.ndarray, offset: int) -> np.nd
     return local[:, np.array(TRIANGLE_CHILDREN)].reshape(-1, 3)
 
 
-def refine(mesh: TetMesh, times: int) -> TetMesh:
+def refine(mesh: SimplexMesh, times: int) -> SimplexMesh:
     for _ in range(times):
         mesh = split(mesh)
     return mesh

@@ -1,11 +1,10 @@
-"""A picture of a device scene's solution (`python -m harness.report.device_plot results/strip_actuator/n16`):
+"""A picture of a device scene's solution (`python -m harness plot results/strip_actuator/n16`):
 for a 2D body, phi, theta (when the scene has it) and the displacement on the deformed mesh (displacement and
 thickness exaggerated: a device is thin); for a 3D body, phi and theta on its bottom face
 (where a device meets its pad; see face_panel) and on the section y = 0 (harness/measure/slices.py), from solution.vtu."""
 
 from __future__ import annotations
 
-import sys
 from pathlib import Path
 
 import matplotlib
@@ -95,16 +94,3 @@ def render(run: Path, target: Path) -> None:
     fig.savefig(target, dpi=100)
     plt.close(fig)
 
-
-if __name__ == "__main__":
-    if len(sys.argv) not in (2, 3):
-        sys.stderr.write("error: usage: python -m harness.report.device_plot RUN_DIR [PICTURE.png]\n")
-        raise SystemExit(2)
-    run = Path(sys.argv[1])
-    out = Path(sys.argv[2]) if len(sys.argv) > 2 else run.parent / "fields.png"
-    try:
-        render(run, out)
-    except Exception as exc:  # noqa: BLE001  (one line, never a traceback)
-        sys.stderr.write(f"error: {run}: {exc}\n")
-        raise SystemExit(3) from None
-    print(f"wrote {out}")

@@ -1,5 +1,5 @@
-"""A picture of a 3D solution (`python -m harness.report.plot3d results/paper3d/n16 [out.png]
-[case.toml]`): phi and theta on the mid-plane y = (ymin + ymax)/2 and on the contact face,
+"""A picture of a 3D solution (`python -m harness plot results/paper3d/n16 --view section
+[--case case.toml]`): phi and theta on the mid-plane y = (ymin + ymax)/2 and on the contact face,
 with the displacement of the mid-plane exaggerated, from solution.vtu. A Kuhn mesh has nodes
 on every grid plane; any other tetrahedral mesh (a gmsh scene) is cut by sampling its P1
 fields on a grid of the plane (point location). The contact face is Gamma_3 of the case when
@@ -7,7 +7,6 @@ one is given, drawn in its own plane, and the face z = zmin otherwise."""
 
 from __future__ import annotations
 
-import sys
 from pathlib import Path
 
 import matplotlib
@@ -66,9 +65,3 @@ def render(run: Path, target: Path, case: Path | None = None) -> None:
     fig.savefig(target, dpi=110)
     plt.close(fig)
 
-
-if __name__ == "__main__":
-    run = Path(sys.argv[1]) if len(sys.argv) > 1 else Path("results/paper3d/n16")
-    out = Path(sys.argv[2]) if len(sys.argv) > 2 else run.parent / "fields.png"
-    render(run, out, Path(sys.argv[3]) if len(sys.argv) > 3 else None)
-    print(f"wrote {out}")

@@ -44,16 +44,31 @@ def finite(value: Any) -> Any:
 
 
 def problem(table: dict[str, dict[str, Any]], effects: tuple[str, ...], dimension: int, material: dict[str, Any],
-            mesh: Path, start: str, pressed_depth: float = 2e-6) -> dict[str, Any]:
+            mesh: Path, start: str, pressed_depth: float = 2e-6, poling: tuple[float, ...] | None = None,
+            regions: tuple[PeerRegion, ...] = ()) -> dict[str, Any]:
     """The peer's input: everything one solve depends on. `table`: the data FreeFEM gets
-    (Scene.solver_parameters: sections of effects that are off left out); `pressed_depth`:
-    how far the pressed start pushes Gamma_3 in, 2 max(eps_e, eps_c) [m]."""
+    (Scene.solver_parameters: sections of effects that are off left out); `material`: the
+    material file's values in its own axes, poled along `poling` (None: its own axis 3);
+    `regions`: with material regions, each one's cells, values and poling instead;
+    `pressed_depth`: how far the pressed start pushes Gamma_3 in, 2 max(eps_e, eps_c) [m]."""
     sections = ("loads", "contact", "electric_contact", "thermal_contact", "newton")
     return {
         "mesh": str(mesh), "dimension": dimension, "labels": dict(ROLE_LABELS), "effects": list(effects),
-        "material": material, "start": start, "pressed_depth": pressed_depth,
+        "material": material, "poling": None if poling is None else list(poling),
+        "regions": [{"label": r.label, "material": r.material, "poling": list(r.poling)} for r in regions],
+        "start": start, "pressed_depth": pressed_depth,
         **{s: {k: finite(v) for k, v in table.get(s, {}).items()} for s in sections},
     }
+
+
+@dataclass(frozen=True)
+class PeerRegion:
+    """A material region as the peer takes it: its cells' label in the mesh file, the material
+    file's values, the unit vector of its poling."""
+
+    label: int
+    material: dict[str, Any]
+    poling: tuple[float, ...]
 
 
 def run_peer(spec: dict[str, Any], work: Path, timeout_s: float) -> PeerRun:

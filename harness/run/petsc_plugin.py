@@ -29,8 +29,16 @@ def flags(source: Path, out: Path) -> list[str]:
             f"-Wl,-rpath,{petsc / 'lib'}", f"-L{petsc / 'lib'}", "-lpetsc_real"]
 
 
+def build_spec(build: Path = BUILD, source: Path = SOURCE) -> native.Build:
+    return native.Build("the PETSc plugin", source, build, os.environ.get("MPICXX", "mpicxx"), "MPI C++ compiler",
+                        'run.linear_solver = "petsc"', flags)
+
+
+def path(build: Path = BUILD, source: Path = SOURCE) -> Path:
+    """Where the plugin for `source` is (or will be) built: its name, without building it."""
+    return native.target(build_spec(build, source))
+
+
 def library(build: Path = BUILD, source: Path = SOURCE) -> Path:
     """The plugin for `source`, compiled into `build` unless already there."""
-    return native.library(native.Build(
-        "the PETSc plugin", source, build, os.environ.get("MPICXX", "mpicxx"), "MPI C++ compiler",
-        'run.linear_solver = "petsc"', flags))
+    return native.library(build_spec(build, source))

@@ -1,4 +1,5 @@
-"""Run one level: reuse a cached result or run FreeFEM in a temp dir, then swap it in atomically."""
+"""Run one level's plan (harness/run/plan.py): reuse a cached result or run FreeFEM in a temp dir,
+then swap it in atomically."""
 
 from __future__ import annotations
 
@@ -9,51 +10,23 @@ import shutil
 import uuid
 from dataclasses import dataclass
 from pathlib import Path
-from typing import Any
 
 from harness.core import freefem
-
-from harness.run import launcher, petsc_plugin
-
-from harness.scene import materials
 from harness.core.atomic import OLD_PREFIX, RUN_TEMP_PREFIX, write_atomic
 from harness.core.contract import Failure
-from harness.run.cache import cached_record, run_inputs, sha256_file, write_checksums
 from harness.core.errors import EnvironmentFault, HarnessError, RunError, SceneError
-from harness.scene.gmsh_geometry import GmshGeometry
 from harness.core.faults import disk_full, space_for
-from harness.scene.floating import floating_macros
-from harness.core.signals import CHILDREN, Interrupted
+from harness.core.gmsh_api import GMSH
 from harness.core.layout import Layout
-from harness.mesh.mesh import coarser_meshes, family_levels
+from harness.core.signals import CHILDREN, Interrupted
+from harness.mesh.mesh import build_mesh
+from harness.run import launcher, petsc_plugin
+from harness.run.cache import cached_record, write_checksums
+from harness.run.plan import Invocation, RunPlan, WarmStart, invocation, make_plan
 from harness.run.record import RunRecord, read_run_json, write_run_json
 from harness.run.tresca import grip_warning
+from harness.scene import materials
 from harness.scene.scene import Scene
-from harness.scene.regions import region_definitions
-from harness.run.script import main_script
-
-
-@dataclass(frozen=True)
-class WarmStart:
-    """A converged state to start Newton from: its mesh and its state.txt (output.idp)."""
-
-    mesh: Path
-    state: Path
-    key: str | None = None  # the coarser run's cache key: stands for its state in this run's key
-
-
-def start_of(scene: Scene, warm: WarmStart | None) -> tuple[str, WarmStart | None]:
-    """FreeFEM's initial_guess and the state it reads, from the scene and an optional coarser run."""
-    guess = scene.initial_guess
-    if guess == "coarser":
-        return ("file", warm) if warm else (scene.sections.scene.coarsest_guess, None)
-    if guess == "file":
-        given = WarmStart(Path(scene.sections.scene.initial_mesh), Path(scene.sections.scene.initial_state))
-        for what, path in (("initial_mesh", given.mesh), ("initial_state", given.state)):
-            if not path.is_file():
-                raise SceneError(f"initial_guess = file: scene.{what} {str(path)!r} is not a file")
-        return "file", given
-    return guess, None
 
 
 @dataclass(frozen=True)
@@ -98,7 +71,9 @@ def run_level(
 
 
 class LevelRun:
-    """One level's run: reuse a cached result, or run FreeFEM in a temp dir and swap it in.
+    """The executor of one level's run plan (harness/run/plan.py): reuse a cached result, or
+    make the meshes the plan names, build the solver's plugin, run FreeFEM in a temp dir and
+    swap its outputs in.
 
     Pipelined (`launch_early`, for a level warm-started from the one below it): FreeFEM is
     started before that coarser level has finished. It compiles the scheme, loads both
@@ -114,60 +89,50 @@ class LevelRun:
         self.scene, self.mesh, self.n, self.layout, self.force = scene, mesh, n, layout, force
         self.work: Path | None = None
         self.launched: freefem.Launched | None = None
-        self.inputs: dict[str, Any] = {}
-        self.start_line: tuple[str, WarmStart | None] = ("", None)
+        self.plan: RunPlan | None = None
         self.resumed_at: float | None = None
 
     def launch_early(self, coarser_mesh: Path) -> None:
         """Start FreeFEM now; it will wait for the state of the run on `coarser_mesh`."""
         if launcher.ranks_of(self.scene).parallel:  # stdin reaches rank 0 only: no pipelined start
             return
+        early = invocation(self.scene, self.mesh, self.n, self.layout, "file", WarmStart(coarser_mesh, Path("-")))
         with self._space():
             self.work = self._new_work_dir()
-            self.launched = self._launch("file", WarmStart(coarser_mesh, Path("-")), waits=True)
+            self.launched = self._launch(early, waits=True)
 
     def start(self, warm: WarmStart | None) -> RunResult | None:
-        """The cached result (and no run) if the inputs are unchanged, else None with the run
-        under way (wait() for it)."""
-        guess, start = start_of(self.scene, warm)
-        described = {**self.scene.run_inputs(), "start": guess}
-        ranks = launcher.ranks_of(self.scene)
-        if ranks.parallel:  # a run on other ranks is another measurement (same solution to round-off)
-            described["ranks"] = ranks.count
-        if start and start.key:
-            described["start_key"] = start.key
-        elif start:
-            described["start_state_sha256"] = sha256_file(start.state)
-        script, options = solver_inputs(self.scene, self.mesh, self.n, self.layout, guess, start, make_meshes=False)
-        self.inputs = run_inputs(self.mesh, described, self.layout.freefem, freefem.freefem_version(), self.n,
-                                 script, keyed_options(options), self.layout.material_file(self.scene.material))
-        self.start_line = (guess, start)
-        cached = cached_result(self.layout.level_dir(self.scene.name, self.n), self.inputs["key"], self.n)
+        """The cached result (and no run) if the plan's key is unchanged, else None with the
+        run under way (wait() for it)."""
+        plan = self.plan = make_plan(self.scene, self.mesh, self.n, self.layout, warm)
+        cached = cached_result(self.layout.level_dir(self.scene.name, self.n), plan.key, self.n)
         if cached and not self.force:
             self.abandon()
             return cached
-        if self.launched is not None and start is not None and guess == "file":
-            self.resumed_at = self.launched.resume(str(start.state.resolve()))
+        if self.launched is not None and plan.start is not None and plan.guess == "file":
+            self.resumed_at = self.launched.resume(str(plan.start.state.resolve()))
         else:
             self.abandon()  # launched early for a start it will not get: run afresh
             with self._space():
                 self.work = self._new_work_dir()
-                self.launched = self._launch(guess, start, waits=False)
+                self.launched = self._launch(plan.main, waits=False)
         return None
 
     def wait(self) -> RunResult:
-        assert self.launched is not None and self.work is not None
-        work, scene, n = self.work, self.scene, self.n
+        assert self.launched is not None and self.work is not None and self.plan is not None
+        work, scene, n, plan = self.work, self.scene, self.n, self.plan
         try:
             outcome = freefem.finish(self.launched, scene.timeout_s)
-            if launcher.ranks_of(scene).parallel and outcome.returncode == 0:
-                post = post_pass_command(work, scene, self.mesh, n, self.layout)
+            if plan.post is not None and outcome.returncode == 0:
+                script = work / "post.edp"
+                script.write_text(plan.post.script)
+                post = freefem.command(script, launcher.post_pass_options(plan.post.bound(work), work))
                 outcome = launcher.post_pass(work, post, outcome, scene.timeout_s)
             if CHILDREN.signum is not None:  # killed by the signal handler, not a failure of its own
                 raise Interrupted(CHILDREN.signum)
             waited = None if self.resumed_at is None else waited_s(work, self.resumed_at)
             with self._space():  # collect writes run.json's final form
-                record = collect(work, scene, n, self.layout, outcome, *self.start_line, waited)
+                record = collect(work, scene, n, self.layout, outcome, plan.guess, plan.start, waited)
         except RunError as exc:
             keep_failed(work, self.layout.failed_dir(scene.name, n))
             CHILDREN.drop_dir(work)
@@ -182,7 +147,7 @@ class LevelRun:
         final = self.layout.level_dir(scene.name, n)
         try:
             with self._space():
-                write_atomic(work / "inputs.json", json.dumps(self.inputs, indent=2, sort_keys=True) + "\n")
+                write_atomic(work / "inputs.json", json.dumps(dict(plan.inputs), indent=2, sort_keys=True) + "\n")
                 write_checksums(work)
                 swap_in(work, final)
         except BaseException:
@@ -191,7 +156,7 @@ class LevelRun:
         CHILDREN.drop_dir(work)
         self.work = None
         shutil.rmtree(self.layout.failed_dir(scene.name, n), ignore_errors=True)
-        return RunResult(n, final, record, reused=False, key=self.inputs["key"])
+        return RunResult(n, final, record, reused=False, key=plan.key)
 
     def abandon(self) -> None:
         """Kill a run that will not be waited for and remove its directory."""
@@ -214,12 +179,26 @@ class LevelRun:
         CHILDREN.add_dir(work)  # removed on a signal, whichever thread owns it
         return work
 
-    def _launch(self, guess: str, start: WarmStart | None, waits: bool) -> freefem.Launched:
+    def _launch(self, run: Invocation, waits: bool) -> freefem.Launched:
+        """Make what `run` needs (its coarser meshes, the solver's plugin), write its main.edp, start it."""
         assert self.work is not None
-        argv = solver_command(self.work, self.scene, self.mesh.resolve(), self.n, self.layout, guess, start)
-        if launcher.ranks_of(self.scene).parallel:
-            return freefem.launch(argv, self.work, env=launcher.environment())
-        return freefem.launch(argv, self.work, waits_on_stdin=waits)
+        make_meshes(self.scene, run)
+        if self.scene.solver.builds_plugin:
+            petsc_plugin.library()
+        script = self.work / "main.edp"
+        script.write_text(run.script)
+        ranks = launcher.ranks_of(self.scene)
+        if ranks.parallel:
+            return freefem.launch(ranks.argv(script, run.bound(self.work)), self.work, env=launcher.environment())
+        return freefem.launch(freefem.command(script, run.bound(self.work)), self.work, waits_on_stdin=waits)
+
+
+def make_meshes(scene: Scene, run: Invocation) -> None:
+    """The coarser meshes `run` names (a multigrid's levels, a coarse space), made or refreshed."""
+    if run.meshes:
+        with GMSH:
+            for level, path in run.meshes:
+                build_mesh(scene.geometry, level, path.parent, warn=False)
 
 
 def waited_s(work: Path, resumed_at: float) -> float:
@@ -235,102 +214,6 @@ def cached_result(directory: Path, key: str, n: int) -> RunResult | None:
     if record is not None and (directory / "solution.vtu").is_file():
         return RunResult(n, directory, record, reused=True, key=key)
     return None
-
-
-# Options that name files: their content is keyed (mesh, start), not where they are.
-PATH_OPTIONS = frozenset({"-mesh", "-out", "-init.mesh", "-init.state", "-mg.mesh", "-ddm.coarse_mesh"})
-
-
-def keyed_options(options: list[str]) -> tuple[str, ...]:
-    out: list[str] = []
-    skip = False
-    for item in options:
-        if skip:
-            skip = False
-            continue
-        if item in PATH_OPTIONS:
-            skip = True
-            continue
-        out.append(item)
-    return tuple(out)
-
-
-def solver_inputs(
-    scene: Scene, mesh: Path, n: int, layout: Layout, guess: str, start: WarmStart | None, out: Path | None = None,
-    sequential: bool = False, make_meshes: bool = True,
-) -> tuple[str, list[str]]:
-    """main.edp's text and FreeFEM's options. A start state "-" is read from stdin (a pipelined run).
-    On several ranks (run.ranks > 1) the text is the distributed scheme's, unless `sequential`.
-    The coarser meshes the options name (a multigrid's levels, a coarse space) are made only
-    with `make_meshes`: the cache key needs their names alone."""
-    macros = {**manufactured_macros(scene, layout), **scene.reference_macros(), **scene.poling_macros(),
-              **floating_macros(scene.geometry)}
-    parallel = launcher.ranks_of(scene).parallel and not sequential
-    petsc = scene.linear_solver == "petsc"
-    definitions = region_definitions(scene.regions, layout, scene.dimension) if scene.regions else []
-    text = main_script(scene.material, scene.effects, layout, element=scene.element, macros=macros,
-                       definitions=definitions,
-                       linear_solver=scene.linear_solver, petsc_plugin=petsc_plugin.library() if petsc else None,
-                       ranks=parallel, dimension=scene.dimension)
-    options = ["-mesh", str(mesh.resolve()), "-out", str(out.resolve() if out else "-"), "-n", str(n)]
-    options += freefem.scene_options(scene.solver_parameters(), guess)
-    if petsc:
-        options += ["-run.petsc_options", scene.petsc_options]
-        for coarse in coarser_meshes(scene.geometry, n, scene.multigrid_levels, scene.sections.run.multigrid_coarsest,
-                                     mesh.resolve().parent, make_meshes):
-            options += ["-mg.mesh", str(coarse)]
-    if isinstance(scene.geometry, GmshGeometry) and scene.geometry.small_cells(n):
-        options += ["-mesh.small_cells", "1"]
-    if parallel:
-        options += ["-parallel.krylov_rtol", repr(scene.sections.run.krylov_rtol)]
-    if parallel and scene.coarse_levels:
-        options += coarse_space_options(scene, n, mesh, make_meshes)
-    if start:
-        state = str(start.state) if str(start.state) == "-" else str(start.state.resolve())
-        options += ["-init.mesh", str(start.mesh.resolve()), "-init.state", state]
-    return text, options
-
-
-def coarse_space_options(scene: Scene, n: int, mesh: Path, make: bool = True) -> list[str]:
-    """The two-level Schwarz's coarse mesh on ranks (freefem/coarse_space.idp): the scene's
-    mesh run.coarse_levels halvings below n, or the coarsest of the family (n = 2); none
-    when n cannot be halved."""
-    coarse = coarser_meshes(scene.geometry, n, scene.coarse_levels, 2, mesh.resolve().parent, make)
-    if not coarse:
-        return []
-    coarse_n = family_levels(scene.geometry, n, scene.coarse_levels)[-1]  # the level of coarse[-1]
-    return ["-ddm.coarse_mesh", str(coarse[-1]), "-ddm.coarse_n", str(coarse_n)]
-
-
-def manufactured_macros(scene: Scene, layout: Layout) -> dict[str, str]:
-    """The macros of a scene's [manufactured] solution (harness/scene/mms.py): a hook loaded only
-    for such a scene, so no other run pays for importing sympy (0.6 s)."""
-    if not scene.manufactured:
-        return {}
-    from harness.scene.mms import scene_macros
-
-    return scene_macros(scene, layout)
-
-
-def solver_command(
-    work: Path, scene: Scene, mesh: Path, n: int, layout: Layout, guess: str, start: WarmStart | None
-) -> list[str]:
-    """Write main.edp into `work` and return FreeFEM's command line."""
-    script = work / "main.edp"
-    text, options = solver_inputs(scene, mesh, n, layout, guess, start, out=work)
-    script.write_text(text)
-    ranks = launcher.ranks_of(scene)
-    return ranks.argv(script, options) if ranks.parallel else freefem.command(script, options)
-
-
-def post_pass_command(work: Path, scene: Scene, mesh: Path, n: int, layout: Layout) -> list[str]:
-    """The sequential pass after a distributed solve (harness/run/launcher.py): post.edp from
-    the gathered state, no Newton step."""
-    script = work / "post.edp"
-    start = WarmStart(mesh, work / "parallel_state.txt")
-    text, options = solver_inputs(scene, mesh, n, layout, "file", start, out=work, sequential=True)
-    script.write_text(text)
-    return freefem.command(script, launcher.post_pass_options(options, work))
 
 
 def collect(

@@ -12,7 +12,8 @@ from typing import Mapping, Sequence
 
 from harness.core.contract import contract_path
 from harness.core.layout import Layout
-from harness.scene.schema import EFFECTS, LINEAR_SOLVERS
+from harness.scene.linear_solvers import SOLVERS, LinearSolver
+from harness.scene.schema import EFFECTS
 from harness.scene.unknowns import Unknowns
 
 
@@ -27,31 +28,20 @@ def main_script(
     layout: Layout,
     element: str = "P1",
     macros: Mapping[str, str] | None = None,
-    linear_solver: str = "mumps",
+    linear_solver: LinearSolver = SOLVERS["mumps"],
     dimension: int = 2,
     scheme: Path | None = None,
-    petsc_plugin: Path | None = None,
+    plugin: Path | None = None,
     definitions: Sequence[str] = (),
     ranks: bool = False,
 ) -> str:
-    """`petsc_plugin`: the built plugin (harness/run/petsc_plugin.py), for linear_solver "petsc";
+    """`plugin`: the built plugin of a solver that builds one (harness/run/petsc_plugin.py);
     `definitions`: FreeFEM lines written as they are after the macros (material regions);
     `ranks`: the scheme's N-rank backend (freefem/ranks.idp, run.ranks > 1, FreeFem++-mpi)."""
     lines = ["// Written by the harness (harness/run/script.py); edit the scene, not this file."]
     if ranks:
         lines.append("macro PARALLELSCHEME 1 //")
-    plugin, name = LINEAR_SOLVERS[linear_solver]
-    if linear_solver == "petsc":
-        if petsc_plugin is None:
-            raise ValueError("linear_solver 'petsc' needs the built plugin's path")
-        # The Newton system goes to PETSc (freefem/petsc_linear_solver.idp); the few direct
-        # solves left (a staggered theta, the pressed start) to FreeFEM's UMFPACK: a MUMPS
-        # plugin would bring a second MUMPS library into the process beside PETSc's.
-        lines += [f'load "{petsc_plugin.with_suffix("")}"', "macro PETSCSOLVER 1 //",
-                  "macro LINEARSOLVER UMFPACK //", f'string linearSolverName = "{name}";']
-    elif plugin:
-        # Loading the plugin makes it FreeFEM's `sparsesolver`.
-        lines += [f'load "{plugin}"', "macro LINEARSOLVER sparsesolver //", f'string linearSolverName = "{name}";']
+    lines += linear_solver.macros(plugin)
     lines += [f"macro {effect_macro(e)} 1 //" for e in effects]
     lines.append(f"macro ELEMENT {element} //")
     # The fields' code, and the dimension of the displacement (harness/scene/unknowns.py).

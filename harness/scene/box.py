@@ -18,7 +18,7 @@ import numpy as np
 from harness.scene.cell_size import Body
 from harness.scene.electrodes import Part
 from harness.core.errors import MeshError, SceneError
-from harness.scene.schema import ROLE_LABELS
+from harness.core.contract import ROLE_LABELS
 
 FACES = ("x0", "x1", "y0", "y1", "z0", "z1")
 

@@ -8,6 +8,7 @@ from typing import Any
 
 from harness.core.contract import FLOATING_CHARGES, FLOATING_ROLES
 from harness.core.errors import SceneError
+from harness.scene.linear_solvers import accepting, solver
 
 
 def roles_of(geometry: Any) -> set[str]:
@@ -40,9 +41,9 @@ def check_floating(table: dict[str, dict[str, Any]], geometry: Any) -> None:
     if any(str(v).strip() for v in table.get("manufactured", {}).values()):
         raise SceneError(f"geometry: the role {roles[0]!r} has no manufactured solution (its charge is a load of its own)")
     run = table["run"]
-    if run["linear_solver"] == "petsc" or run["ranks"] > 1:
+    if not solver(run["linear_solver"]).floating or run["ranks"] > 1:
         raise SceneError(f"run.linear_solver = {run['linear_solver']!r}, run.ranks = {run['ranks']}: a floating "
-                         "electrode is solved on one rank with a direct solver (mumps, umfpack, umfpack64)")
+                         f"electrode is solved on one rank with a direct solver ({accepting('floating')})")
 
 
 def floating_macros(geometry: Any) -> dict[str, str]:

@@ -14,7 +14,8 @@ from typing import Any, Iterable
 from harness.scene.electrodes import check_electrodes
 from harness.core.errors import SceneError
 from harness.scene.floating import check_floating
-from harness.scene.petsc_options import default_options, factorising, multigrid
+from harness.scene.linear_solvers import LinearSolver, Memory, solver
+from harness.scene.petsc_options import default_options
 from harness.scene.box import Box, parse_box
 from harness.scene.gmsh_geometry import GmshGeometry, parse_gmsh
 from harness.scene.poling import Poling, default_axis, parse_poling
@@ -105,6 +106,21 @@ class Scene:
         return self.sections.run.linear_solver
 
     @property
+    def solver(self) -> LinearSolver:
+        """run.linear_solver's entry (harness/scene/linear_solvers.py)."""
+        return solver(self.linear_solver)
+
+    @property
+    def solver_options(self) -> str:
+        """The linear solver's own options (for PETSc, petsc_options); "" for one that has none."""
+        entry = self.solver
+        if not entry.options_key:
+            return ""
+        given = str(getattr(self.sections.run, entry.options_key)).strip()
+        fields = tuple(f.name for f in Unknowns(self.effects, self.dimension).newton)
+        return given or (entry.default_options(self.dimension, fields) if entry.default_options else "")
+
+    @property
     def petsc_options(self) -> str:
         """run.petsc_options, or the measured default of the scene's dimension when blank."""
         fields = tuple(f.name for f in Unknowns(self.effects, self.dimension).newton)
@@ -113,7 +129,7 @@ class Scene:
     @property
     def multigrid_levels(self) -> int:
         """Coarser meshes a geometric multigrid gets (0: the options ask for none)."""
-        return self.sections.run.multigrid_levels if self.linear_solver == "petsc" and multigrid(self.petsc_options) else 0
+        return self.sections.run.multigrid_levels if self.solver.wants_coarser_meshes(self.solver_options) else 0
 
     @property
     def coarse_levels(self) -> int:
@@ -126,7 +142,7 @@ class Scene:
     @property
     def factorises(self) -> bool:
         """Whether the linear solver factorises the Newton matrix (memory: a factor's fill)."""
-        return self.linear_solver != "petsc" or factorising(self.petsc_options)
+        return self.solver.memory(self.solver_options) is Memory.FACTOR
 
     @property
     def levels(self) -> tuple[int, ...]:
@@ -164,7 +180,7 @@ class Scene:
             "initial_guess": self.initial_guess,
             "element": self.element,
             "linear_solver": self.linear_solver,
-            **({"petsc_options": self.petsc_options} if self.linear_solver == "petsc" else {}),
+            **self.solver.keyed(self.solver_options),
             **({"multigrid": [self.multigrid_levels, self.sections.run.multigrid_coarsest]}
                if self.multigrid_levels else {}),
             **({"coarse_levels": self.coarse_levels} if self.coarse_levels else {}),

@@ -10,16 +10,12 @@ import math
 from dataclasses import dataclass
 from typing import Any, Callable
 
-from harness.core.contract import FLOATING_CHARGES, ROLE_LABELS  # noqa: F401  (ROLE_LABELS re-exported: the roles a scene may name)
+from harness.core.contract import FLOATING_CHARGES, ROLE_LABELS
 from harness.core.layout import is_material_path
+from harness.scene.linear_solvers import SOLVERS
 
 # Sections passed verbatim to FreeFEM as `-<section>.<key> <value>`.
 SOLVER_SECTIONS = ("loads", "contact", "electric_contact", "thermal_contact", "newton")
-# Sparse direct solvers FreeFEM offers on Debian: name -> (plugin to load, or "" for the
-# built-in UMFPACK; the name run.json reports).
-LINEAR_SOLVERS = {"mumps": ("MUMPS_seq", "MUMPS_seq"), "umfpack": ("", "UMFPACK"), "umfpack64": ("UMFPACK64", "UMFPACK64"),
-                  # The project's PETSc plugin (harness/run/petsc_plugin.py): Krylov + run.petsc_options.
-                  "petsc": ("", "PETSc")}
 
 REQUIRED = object()
 
@@ -194,7 +190,7 @@ SCHEMA: dict[str, dict[str, Key]] = {
         "left": Key(str, check=_ROLE),
         "right": Key(str, check=_ROLE),
         # "unstructured": gmsh's Frontal-Delaunay triangles of size h with the interior
-        # nodes shifted at random by up to 0.3 h (a distorted, non-nested mesh; harness/mesh/mesh.py).
+        # nodes shifted at random by up to 0.3 h (a distorted, non-nested mesh; harness/mesh/rectangle_mesh.py).
         "diagonals": Key(str, "SW-NE", one_of("SW-NE", "NW-SE", "unstructured")),
     },
     "loads": {
@@ -239,13 +235,13 @@ SCHEMA: dict[str, dict[str, Key]] = {
     },
     "run": {
         "timeout_s": Key(float, 600.0, positive),
-        # The sparse direct solver (freefem/effects.idp, LINEARSOLVER). MUMPS_seq is the
+        # The linear solver (harness/scene/linear_solvers.py; freefem/effects.idp, LINEARSOLVER). MUMPS_seq is the
         # fastest here at every level (results/bench/) and, unlike the built-in UMFPACK
         # (32-bit indices), reaches h = 1/256.
-        "linear_solver": Key(str, "mumps", one_of(*LINEAR_SOLVERS)),
+        "linear_solver": Key(str, "mumps", one_of(*SOLVERS)),
         # With linear_solver = "petsc": PETSc's options for the Newton system ("-ksp_type gmres
         # -pc_type fieldsplit ..."); blank: the measured default of the scene's dimension
-        # (harness/run/petsc_plugin.py DEFAULT_OPTIONS, docs/solvers.md).
+        # (harness/scene/petsc_options.py default_options, docs/solvers.md).
         "petsc_options": Key(str, "", petsc_option_words),
         # With a PETSc geometric multigrid (-pc_type mg in run.petsc_options): how many coarser
         # meshes of the scene's nested family, each halving n, become its levels, the coarsest

@@ -10,7 +10,7 @@ import numpy as np
 from harness.scene.cell_size import Body
 from harness.scene.electrodes import Part
 from harness.core.errors import SceneError
-from harness.scene.schema import ROLE_LABELS
+from harness.core.contract import ROLE_LABELS
 
 
 @dataclass(frozen=True)

@@ -17,7 +17,9 @@ Measurements, each repeated:
   startup  FreeFEM running an empty script;
   process  `python -m harness solve CASE --n FINEST --force` as a whole process from nothing
            (imports, the chain below, the report), beside its own FreeFEM run of the finest
-           level: the harness's own start-up overhead.
+           level: the harness's own start-up overhead;
+  mesh     the finest level's mesh made and written (build_mesh: the generator, the checks,
+           the MSH 2.2 file) in this process, into a fresh folder each time.
 Ratios per repetition: sweep / finest level within that sweep, and newton_over_linear of
 the finest level (run.json: Newton wall time over one bulk assembly plus one
 factorisation, same run). The GetFEM implementation of the same scheme took 11.6 s for
@@ -52,10 +54,11 @@ from harness.core.layout import REPO, Layout
 from harness.run.record import read_run_json
 from harness.run.run import WarmStart, run_level
 from harness.scene.scene import Scene, load_scene
-from harness.scene.schema import LINEAR_SOLVERS
+from harness.scene.linear_solvers import SOLVERS
 from harness.study.study import run_study
 from harness.study.pipeline import Guarded, Plan, run_pipeline
 from harness.core.writers import markdown_table, write_csv, write_json, write_text
+from harness.mesh.mesh import build_mesh
 
 GETFEM_FINEST_S = 11.6  # issue 5: GetFEM + SuperLU, 5 Newton iterations, h = 1/64
 SOLVER_KEYS = ("wall_s", "first_factorisation_s", "solve_s", "newton_s", "gmres_iterations", "peak_rss_mb")
@@ -104,7 +107,7 @@ def repeat_level(scene: Scene, mesh: Path, n: int, layout: Layout, warm: WarmSta
 def bench_solvers(case: Path, overrides: Sequence[str], levels: Sequence[int], layout: Layout, repeats: int,
                   say: Callable[[str], None]) -> dict[str, list[dict[str, Any]]]:
     out = {}
-    for solver in LINEAR_SOLVERS:
+    for solver in SOLVERS:
         samples = bench_finest(case, [*overrides, f'run.linear_solver="{solver}"'], levels, layout, repeats, say)
         out[f"solver {solver}"] = [{k: s[k] for k in SOLVER_KEYS} for s in samples]
     return out
@@ -199,6 +202,22 @@ def bench_process(case: Path, overrides: Sequence[str], levels: Sequence[int], r
     return out
 
 
+def bench_mesh(case: Path, overrides: Sequence[str], levels: Sequence[int], repeats: int,
+               say: Callable[[str], None]) -> list[dict[str, Any]]:
+    scene = load_scene(case, overrides)
+    finest = max(levels)
+    samples = []
+    with tempfile.TemporaryDirectory(prefix="bench-mesh-") as tmp:
+        for k in range(repeats):
+            start = time.perf_counter()
+            summary = build_mesh(scene.geometry, finest, Path(tmp) / str(k), warn=False)
+            seconds = time.perf_counter() - start
+            samples.append({"mesh_s": seconds, "cells": summary.triangles, "file_mb": summary.path.stat().st_size / 1e6,
+                            "load_1min": os.getloadavg()[0]})
+            say(f"mesh {k + 1}/{repeats}: n={finest}, {summary.triangles} cells, {seconds:.3f} s")
+    return samples
+
+
 def summarise(raw: dict[str, list[dict[str, Any]]]) -> pd.DataFrame:
     rows = []
     for measurement, samples in raw.items():
@@ -258,7 +277,7 @@ def cpu_name() -> str:
     return platform.processor() or "unknown"
 
 
-MEASUREMENTS = ("startup", "finest", "solvers", "cold", "sweep", "cli", "process")
+MEASUREMENTS = ("startup", "finest", "solvers", "cold", "sweep", "cli", "process", "mesh")
 
 
 def add_arguments(parser: argparse.ArgumentParser) -> None:
@@ -312,6 +331,8 @@ def measure(args: argparse.Namespace, levels: tuple[int, ...],
         raw["cli"] = bench_cli(args.case, args.overrides, levels, args.repeats, say)
     if "process" in wanted:
         raw["process"] = bench_process(args.case, args.overrides, levels, args.repeats, say)
+    if "mesh" in wanted:
+        raw["mesh"] = bench_mesh(args.case, args.overrides, levels, args.repeats, say)
     shutil.rmtree(layout.case_dir("bench-sweep"), ignore_errors=True)
     return raw, load_before
 

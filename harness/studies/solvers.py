@@ -89,7 +89,7 @@ def measure(case: str, n: int, name: str, repeats: int, layout: Layout,
     solver = scene.linear_solver
     levels = [m for m in scene.levels if m < n] + [n]
     row: dict[str, Any] = {"scene": case, "n": n, "solver": name, "linear_solver": solver,
-                           "options": scene.petsc_options if solver == "petsc" else ""}
+                           "options": scene.solver_options}
     try:
         meshes, _ = timed_meshes(scene, levels, layout)
         below = {m: p for m, p in meshes.items() if m < n}

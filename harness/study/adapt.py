@@ -20,7 +20,7 @@ adapted meshes are nested in it, so each step's error is computed exactly
 
 from __future__ import annotations
 
-from dataclasses import dataclass
+from dataclasses import dataclass, replace
 from pathlib import Path
 from typing import Callable
 
@@ -28,10 +28,11 @@ import numpy as np
 
 from harness.mesh import bisection, tet_bisection
 from harness.study.engine import InlineMeshes, Progress, run_levels, runs_of
+from harness.core.contract import BODY_LABEL
 from harness.core.errors import FieldsError, SceneError
 from harness.measure.fields import Fields, read_fields
-from harness.mesh.gmsh_mesh import SimplexMesh, write_msh
-from harness.mesh.simplex import quality
+from harness.mesh.msh import write_msh
+from harness.mesh.simplex import SimplexMesh, quality
 from harness.core.layout import Layout
 from harness.mesh.mesh import build_mesh
 from harness.measure.norms import error_norms
@@ -46,7 +47,7 @@ class Step:
     run: RunResult
     cells: int
     marked: int                 # cells Dörfler marked on this step (0 on the last)
-    quality: dict[str, float]   # min angle, max aspect (gmsh_mesh.quality)
+    quality: dict[str, float]   # min angle, max aspect (simplex.quality)
 
 
 @dataclass(frozen=True)
@@ -69,35 +70,40 @@ def check_adaptable(scene: Scene) -> None:
                          f"set scene.initial_guess = \"coarser\" (it is {scene.initial_guess!r})")
 
 
-def read_start(path: Path, dimension: int):  # noqa: ANN201 (the dimension's mesh type)
+def read_start(path: Path, dimension: int) -> SimplexMesh:
     """The first step's mesh: the case's coarsest level as the harness wrote it (MSH 2.2,
-    role labels in gmsh:physical)."""
+    role labels and the cells' region labels in gmsh:physical)."""
     import meshio  # here: its import is the slow part of start-up
 
     cell_type, facet_type = CELL_TYPES[dimension]
     mesh = meshio.read(path)
     cells = np.vstack([b.data for b in mesh.cells if b.type == cell_type])
-    facets, labels = [], []
+    facets, labels, regions = [], [], []
     for block, physical in zip(mesh.cells, mesh.cell_data["gmsh:physical"]):
         if block.type == facet_type:
             facets.append(block.data)
             labels.append(physical)
-    return REFINERS[dimension].start(mesh.points[:, :dimension], cells, np.vstack(facets), np.concatenate(labels))
+        elif block.type == cell_type:
+            regions.append(physical)
+    # The steps' cells keep their material (a multi-region scene's regions, harness/scene/regions.py).
+    tags = np.concatenate(regions).astype(np.int64)
+    return REFINERS[dimension].start(mesh.points[:, :dimension], cells, np.vstack(facets), np.concatenate(labels),
+                                     None if (tags == BODY_LABEL).all() else tags)
 
 
-def write_step(mesh, path: Path) -> dict[str, float]:  # noqa: ANN001 (either dimension's mesh)
+def write_step(mesh: SimplexMesh, path: Path) -> dict[str, float]:
     """The step's mesh as MSH 2.2 (cells positive, as FreeFEM needs), and its quality."""
     dimension = mesh.cells.shape[1] - 1
     cells = REFINERS[dimension].oriented(mesh.points, mesh.cells)
     q = quality(mesh.points, cells)
     path.parent.mkdir(parents=True, exist_ok=True)
     partial = path.with_name(f".{path.name}.partial")
-    write_msh(SimplexMesh(mesh.points, cells, mesh.facets, mesh.labels, q), partial)
+    write_msh(replace(mesh, cells=cells), partial)
     partial.replace(path)
     return q
 
 
-def indicator_on(mesh, solution: Path) -> np.ndarray:  # noqa: ANN001 (either dimension's mesh)
+def indicator_on(mesh: SimplexMesh, solution: Path) -> np.ndarray:
     """The run's `error_indicator`, one value per cell of `mesh` in its order (matched by
     the cell's nodes: FreeFEM numbers the nodes as the file does)."""
     import meshio

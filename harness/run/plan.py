@@ -1,0 +1,193 @@
+"""One level's run plan, made before anything runs: main.edp's text, FreeFEM's options, the
+coarser meshes those options name, the sequential pass a distributed solve needs after it,
+and the content key of the whole (harness/run/cache.py).
+
+Making a plan meshes nothing, builds nothing and starts no FreeFEM: it reads the scene, the
+mesh file (for the key) and the solver sources. The executor (harness/run/run.py) makes
+the meshes a plan names, builds the solver's plugin, runs the plan and keeps its outputs.
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+from pathlib import Path
+from typing import Any, Mapping
+
+from harness.core import freefem
+from harness.core.errors import SceneError
+from harness.core.layout import Layout
+from harness.mesh.mesh import coarser_meshes, family_levels
+from harness.run import launcher, petsc_plugin
+from harness.run.cache import run_inputs, sha256_file
+from harness.run.script import main_script
+from harness.scene.floating import floating_macros
+from harness.scene.gmsh_geometry import GmshGeometry
+from harness.scene.regions import region_definitions
+from harness.scene.scene import Scene
+
+# Options that name files: their content is keyed (mesh, start), not where they are.
+PATH_OPTIONS = frozenset({"-mesh", "-out", "-init.mesh", "-init.state", "-mg.mesh", "-ddm.coarse_mesh"})
+# Where the distributed solve leaves its gathered state for the sequential pass (freefem/parallel_output.idp).
+PARALLEL_STATE = "parallel_state.txt"
+# The value of -out until the executor names the run's directory.
+UNBOUND = "-"
+
+
+@dataclass(frozen=True)
+class WarmStart:
+    """A converged state to start Newton from: its mesh and its state.txt (output.idp)."""
+
+    mesh: Path
+    state: Path
+    key: str | None = None  # the coarser run's cache key: stands for its state in this run's key
+
+
+def start_of(scene: Scene, warm: WarmStart | None) -> tuple[str, WarmStart | None]:
+    """FreeFEM's initial_guess and the state it reads, from the scene and an optional coarser run."""
+    guess = scene.initial_guess
+    if guess == "coarser":
+        return ("file", warm) if warm else (scene.sections.scene.coarsest_guess, None)
+    if guess == "file":
+        given = WarmStart(Path(scene.sections.scene.initial_mesh), Path(scene.sections.scene.initial_state))
+        for what, path in (("initial_mesh", given.mesh), ("initial_state", given.state)):
+            if not path.is_file():
+                raise SceneError(f"initial_guess = file: scene.{what} {str(path)!r} is not a file")
+        return "file", given
+    return guess, None
+
+
+@dataclass(frozen=True)
+class Invocation:
+    """One FreeFEM process: its main script, its options (-out not yet bound to a directory)
+    and the coarser meshes (level, file) the options name, which must exist before it starts."""
+
+    script: str
+    options: tuple[str, ...]
+    meshes: tuple[tuple[int, Path], ...] = ()
+
+    def bound(self, work: Path) -> list[str]:
+        """The options of a run in `work`: its outputs there, a distributed solve's state read from there."""
+        out = list(self.options)
+        for i, item in enumerate(out[:-1]):
+            if item == "-out" and out[i + 1] == UNBOUND:
+                out[i + 1] = str(work.resolve())
+            elif item == "-init.state" and out[i + 1] == PARALLEL_STATE:
+                out[i + 1] = str((work / PARALLEL_STATE).resolve())
+        return out
+
+    @property
+    def keyed_options(self) -> tuple[str, ...]:
+        """The options without the files they name (the key holds those files' content)."""
+        out: list[str] = []
+        words = iter(self.options)
+        for item in words:
+            if item in PATH_OPTIONS:
+                next(words, None)
+                continue
+            out.append(item)
+        return tuple(out)
+
+
+@dataclass(frozen=True)
+class RunPlan:
+    """Everything one level's run is, decided before it runs."""
+
+    scene: Scene            # as the level runs it (on as many ranks as it can take)
+    n: int
+    mesh: Path
+    guess: str              # FreeFEM's initial_guess
+    start: WarmStart | None
+    main: Invocation
+    post: Invocation | None  # the sequential pass after a distributed solve (harness/run/launcher.py)
+    inputs: Mapping[str, Any]  # what the key covers, and the key
+
+    @property
+    def key(self) -> str:
+        return str(self.inputs["key"])
+
+
+def make_plan(scene: Scene, mesh: Path, n: int, layout: Layout, warm: WarmStart | None) -> RunPlan:
+    """Level n of `scene` on `mesh`, started from `warm` (a coarser run) when the scene says so."""
+    guess, start = start_of(scene, warm)
+    main = invocation(scene, mesh, n, layout, guess, start)
+    ranks = launcher.ranks_of(scene)
+    post = None
+    if ranks.parallel:
+        post = invocation(scene, mesh, n, layout, "file", WarmStart(mesh, Path(PARALLEL_STATE)), sequential=True)
+    described = {**scene.run_inputs(), "start": guess}
+    if ranks.parallel:  # a run on other ranks is another measurement (same solution to round-off)
+        described["ranks"] = ranks.count
+    if start and start.key:
+        described["start_key"] = start.key
+    elif start:
+        described["start_state_sha256"] = sha256_file(start.state)
+    inputs = run_inputs(mesh, described, layout.freefem, freefem.freefem_version(), n,
+                        main.script, main.keyed_options, layout.material_file(scene.material))
+    return RunPlan(scene, n, mesh, guess, start, main, post, inputs)
+
+
+def invocation(scene: Scene, mesh: Path, n: int, layout: Layout, guess: str, start: WarmStart | None,
+               sequential: bool = False) -> Invocation:
+    """main.edp's text and FreeFEM's options. A start state "-" is read from stdin (a pipelined
+    run). On several ranks (run.ranks > 1) the text is the distributed scheme's, unless
+    `sequential`."""
+    macros = {**manufactured_macros(scene, layout), **scene.reference_macros(), **scene.poling_macros(),
+              **floating_macros(scene.geometry)}
+    parallel = launcher.ranks_of(scene).parallel and not sequential
+    solver = scene.solver
+    definitions = region_definitions(scene.regions, layout, scene.dimension) if scene.regions else []
+    text = main_script(scene.material, scene.effects, layout, element=scene.element, macros=macros,
+                       definitions=definitions, linear_solver=solver,
+                       plugin=petsc_plugin.path() if solver.builds_plugin else None,
+                       ranks=parallel, dimension=scene.dimension)
+    directory = mesh.resolve().parent
+    options = ["-mesh", str(mesh.resolve()), "-out", UNBOUND, "-n", str(n)]
+    options += freefem.scene_options(scene.solver_parameters(), guess)
+    options += solver.freefem_options(scene.solver_options)
+    meshes: list[tuple[int, Path]] = []
+    if scene.multigrid_levels:
+        multigrid = levels_and_meshes(scene, n, scene.multigrid_levels, scene.sections.run.multigrid_coarsest, directory)
+        meshes += multigrid
+        for _, coarse in multigrid:
+            options += ["-mg.mesh", str(coarse)]
+    if isinstance(scene.geometry, GmshGeometry) and scene.geometry.small_cells(n):
+        options += ["-mesh.small_cells", "1"]
+    if parallel:
+        options += ["-parallel.krylov_rtol", repr(scene.sections.run.krylov_rtol)]
+    if parallel and scene.coarse_levels:
+        meshes += coarse_space(scene, n, mesh)
+        options += coarse_space_options(scene, n, mesh)
+    if start:
+        state = str(start.state) if str(start.state) in ("-", PARALLEL_STATE) else str(start.state.resolve())
+        options += ["-init.mesh", str(start.mesh.resolve()), "-init.state", state]
+    return Invocation(text, tuple(options), tuple(meshes))
+
+
+def levels_and_meshes(scene: Scene, n: int, count: int, coarsest: int, directory: Path) -> list[tuple[int, Path]]:
+    """The nested family's levels below n and their mesh files, finest first (not made here)."""
+    levels = family_levels(scene.geometry, n, count, coarsest)
+    paths = coarser_meshes(scene.geometry, n, count, coarsest, directory, make=False)
+    return list(zip(levels, paths))
+
+
+def coarse_space(scene: Scene, n: int, mesh: Path) -> list[tuple[int, Path]]:
+    """The two-level Schwarz's coarse meshes on ranks (freefem/coarse_space.idp), finest
+    first: the scene's mesh run.coarse_levels halvings below n, or the coarsest of the
+    family (n = 2); none when n cannot be halved. The last is the coarse space's."""
+    return levels_and_meshes(scene, n, scene.coarse_levels, 2, mesh.resolve().parent)
+
+
+def coarse_space_options(scene: Scene, n: int, mesh: Path) -> list[str]:
+    """The coarse space's mesh and its level, as FreeFEM reads them."""
+    coarse = coarse_space(scene, n, mesh)
+    return ["-ddm.coarse_mesh", str(coarse[-1][1]), "-ddm.coarse_n", str(coarse[-1][0])] if coarse else []
+
+
+def manufactured_macros(scene: Scene, layout: Layout) -> dict[str, str]:
+    """The macros of a scene's [manufactured] solution (harness/scene/mms.py): a hook loaded only
+    for such a scene, so no other run pays for importing sympy (0.6 s)."""
+    if not scene.manufactured:
+        return {}
+    from harness.scene.mms import scene_macros
+
+    return scene_macros(scene, layout)
