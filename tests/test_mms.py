@@ -271,8 +271,10 @@ MUTATIONS = {
                                       "macro DU1(u) (-mat(e15) * eps5(u)"),
     "penalty factor": ("contact", "forms.idp", "(normalPressure(gapS(u)) * vnu(v)",
                        "(0.5 * normalPressure(gapS(u)) * vnu(v)"),
-    "Tresca bound": ("contact", "forms.idp", "projScale(wNorm(u), frictionBound(u)) * cnu * U * tauDot(u, v)",
-                     "projScale(wNorm(u), 0.5 * frictionBound(u)) * cnu * U * tauDot(u, v)"),
+    # The residual's own bound halved, spelled with friction.idp's projection (the law's
+    # macro set is shared with mms.idp, so the mutation is written out here, in forms.idp).
+    "Tresca bound": ("contact", "forms.idp", "frictionScaleOf(u) * cnu * U * tauDot(u, v)",
+                     "projScale(wNorm(u), 0.5 * frictionBound(normalPressure(gapS(u)))) * cnu * U * tauDot(u, v)"),
     "electric conductance sign": ("contact", "forms.idp", "(electricFlux(gapS(u), Phi * ph - phif) * vp",
                                   "(-electricFlux(gapS(u), Phi * ph - phif) * vp"),
     "thermal conductance factor": ("contact", "forms.idp", "(thermalFlux(gapS(u), Theta * th - thetaf) * vt",
@@ -285,7 +287,7 @@ def test_a_wrong_term_in_the_scheme_fails_the_manufactured_rates(tmp_path, mutat
     """Mutation: the scheme's residual (not the manufactured data) gets one term wrong; some
     field's error must stop converging, i.e. leave the slope bands. The contact mutations
     are in the residual of freefem/forms.idp; freefem/mms.idp evaluates the contact laws
-    at the exact state with contact.idp's macros, so a sign error inside those macros
+    at the exact state with contact.idp's and friction.idp's macros, so a sign error inside those macros
     (shared by both sides) would not show here: tests/test_physics.py checks them."""
     case, name, old, new = MUTATIONS[mutation]
     scripts = tmp_path / "freefem"

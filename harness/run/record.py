@@ -121,7 +121,7 @@ class RunRecord:
     peak_rss_source: str | None = None
     started_from: str | None = None
     warnings: list[str] | None = None  # what the harness warns of this run (harness/run/tresca.py)
-    # -- a run on MPI ranks (run.ranks > 1; harness/run/launcher.py merge_records): the ranks,
+    # -- a run on MPI ranks (run.ranks > 1; freefem/ranks_record.idp): the ranks,
     # freefem/parallel_output.idp's figures, and the sequential pass's own peak and residuals
     ranks: int | None = None
     parallel: dict[str, Any] | None = None
@@ -163,8 +163,7 @@ RENAMED_KEYS = {"active_length": "active_measure"}
 KEYS = frozenset(f.name for f in dataclasses.fields(RunRecord))
 # What output.idp writes on every converged run (the rest depends on the scene).
 ALWAYS_WRITTEN = ("n", "converged", "reason", "newton_iterations", "dofs", "fields")
-HARNESS_KEYS = ("wall_s", "pipelined", "waited_s", "peak_rss_source", "started_from", "warnings",
-                "ranks", "parallel", "post_pass_peak_rss_mb", "post_pass_residuals")
+HARNESS_KEYS = ("wall_s", "pipelined", "waited_s", "peak_rss_source", "started_from", "warnings")
 
 
 def renamed(data: dict[str, Any]) -> dict[str, Any]:

@@ -117,7 +117,14 @@ DATA_EFFECT: dict[tuple[str, str | None], str] = {
 }
 
 
-# Case-file data that only one friction law reads (freefem/contact.idp): key -> (the key
+# The friction laws (freefem/friction.idp, docs/laws.md), each with the key whose positive
+# value makes it grip (a pressed contact then holds the body tangentially: well_posed.py).
+FRICTION_LAWS: dict[str, str] = {
+    "tresca": "S",
+    "coulomb": "mu",
+}
+
+# Case-file data that only one friction law reads (freefem/friction.idp): key -> (the key
 # naming the law, the law that reads it). Under another law the key may be left out.
 LAW_DATA: dict[tuple[str, str], tuple[str, str]] = {
     ("contact", "S"): ("friction_law", "tresca"),
@@ -210,9 +217,9 @@ SCHEMA: dict[str, dict[str, Key]] = {
         # pressure, so it grips the body even where the contact is open (docs/model.md).
         # Required by Tresca only (LAW_DATA).
         "S": Key(float, check=nonnegative),
-        # The slip bound (freefem/contact.idp, docs/laws.md): tresca, R = S; coulomb,
+        # The slip bound (freefem/friction.idp, docs/laws.md): tresca, R = S; coulomb,
         # R = mu c_nu (u_nu - g)_+, mu times the normal pressure (S is then not used).
-        "friction_law": Key(str, "tresca", one_of("tresca", "coulomb")),
+        "friction_law": Key(str, "tresca", one_of(*FRICTION_LAWS)),
         "mu": Key(float, 0.0, nonnegative),
     },
     "electric_contact": {
@@ -248,7 +255,7 @@ SCHEMA: dict[str, dict[str, Key]] = {
         # from n = 16 to 128 (docs/solvers.md). The harness meshes them (harness/mesh/mesh.py).
         "multigrid_levels": Key(int, 4, nonnegative),
         "multigrid_coarsest": Key(int, 8, positive),
-        # MPI ranks of one solve (freefem/parallel.idp, harness/run/launcher.py); 1: the sequential scheme.
+        # MPI ranks of one solve (freefem/ranks.idp, harness/run/launcher.py); 1: the sequential scheme.
         "ranks": Key(int, 1, positive),
         # How ranks are started; {ranks} is replaced. On a SLURM cluster: "srun -n {ranks} FreeFem++-mpi".
         "launcher": Key(str, "ff-mpirun -np {ranks}"),
