@@ -189,7 +189,7 @@ multigrid: $(STAMP) freefem
 
 # Where a 3D solve's time and memory go (docs/solvers.md, "Profile"): the paper's block at
 # h = 1/16, three runs alone from the chain below, each piece's CPU seconds, share and peak,
-# into results/solvers/profile3d.csv and .md (~2 min). With h = 1/32 (~10 min, ~4 GB):
+# into results/solvers/profile3d.csv and .md (~2 min). With h = 1/32 (~10 min, ~2 GB):
 #   make profile3d PROFILE_FLAGS="--levels 16,32"
 .PHONY: profile3d
 profile3d: $(STAMP) freefem

@@ -12,6 +12,16 @@
 //   petscStats(id, stats);                             // iterations, residual, times
 //   petscDestroy(id);
 //
+// The Newton method's bulk matrix K lives here, not in FreeFEM (freefem/bulk.idp):
+//
+//   int k = petscBulkCreate(n);
+//   petscBulkAdd(k, Kuu, 0, 0); ...                      // each block varf, then freed by FreeFEM
+//   petscBulkAssemble(k);
+//   petscBulkMult(k, x, y);  petscBulkDiagonal(k, d);     // y = K x, d = diag(K)
+//   petscBulkDirichlet(k, mask);                          // the Newton system's Dirichlet dofs
+//   int its = petscSolveBulk(id, k, T, b, x, rtol, reuse);  // x = (K + T)^-1 b
+//   petscBulkDestroy(k);
+//
 // The unknowns are FreeFEM's Newton vector: the fields concatenated in order, a vector
 // field's components interleaved per node. Each field becomes an index set named after
 // it, so that "-pc_type fieldsplit -fieldsplit_u_pc_type gamg" addresses the displacement;
@@ -105,13 +115,16 @@ struct Context {
 };
 std::vector<Context *> contexts;
 
-Context *context(long id) {
-  if (id < 0 || id >= (long)contexts.size() || !contexts[id]) {
-    lastMessage = "no PETSc solver context " + std::to_string(id);
+// The object a script's integer handle names, or null (and the message) when it names none.
+template <class T> T *handle(const std::vector<T *> &all, long id, const char *what) {
+  if (id < 0 || id >= (long)all.size() || !all[id]) {
+    lastMessage = std::string("no ") + what + " " + std::to_string(id);
     return nullptr;
   }
-  return contexts[id];
+  return all[id];
 }
+
+Context *context(long id) { return handle(contexts, id, "PETSc solver context"); }
 
 long fail(PetscErrorCode ierr, const std::string &where) {
   std::string text = lastMessage;
@@ -452,78 +465,237 @@ PetscErrorCode unusedOptions(const Context &c, std::string *unused) {
   return 0;
 }
 
-// K and T as FreeFEM's sparse matrices, rows in CSR form with sorted columns.
-PetscErrorCode morsePair(Matrice_Creuse<double> *K, Matrice_Creuse<double> *T, MatriceMorse<double> **k,
-                         MatriceMorse<double> **t) {
-  *k = K->A ? dynamic_cast<MatriceMorse<double> *>(&*K->A) : nullptr;
-  *t = T->A ? dynamic_cast<MatriceMorse<double> *>(&*T->A) : nullptr;
-  if (!*k || !*t || (*k)->half || (*t)->half || (*k)->n != (*t)->n || (*k)->m != (*t)->m) {
-    lastMessage = "K and T must be full sparse matrices of one size";
-    return PETSC_ERR_ARG_WRONG;
+// The Newton method's bulk matrix K, held by the plugin alone (petscBulk* below): FreeFEM
+// assembles one block varf at a time and hands it over, then frees it, so FreeFEM never holds
+// K, nor two blocks at once. FreeFEM's sparse matrix costs about 40 bytes an entry (indices
+// and a hash beside each value); a block waits here as CSR rows, 12 bytes an entry, until all
+// are in, and K is then one PETSc matrix J of 12 bytes an entry.
+//
+// J is also the Newton operator K + T (T the contact tangent, on Gamma_3's rows) with the
+// Dirichlet rows and columns made identity ones: no second copy of K is kept beside it. Where
+// J differs from K (the rows of T and the Dirichlet rows, whole; the Dirichlet columns of the
+// other rows, which hold zeros in J) K's values are kept aside, a few per cent of K, and
+// serve to put K back into J before the next T, and to correct J x into K x.
+struct Bulk {
+  struct Chunk {            // one block, its rows (of K's numbering) as CSR, columns sorted
+    PetscInt row0 = 0, col0 = 0;
+    std::vector<PetscInt> ptr, col;
+    std::vector<PetscScalar> val;
+  };
+  PetscInt n = 0;
+  std::vector<Chunk> chunks;
+  Mat J = nullptr;                   // K once assembled; K + T with identity Dirichlet rows when !clean
+  bool clean = true;                 // J holds K
+  std::vector<PetscInt> dirichlet;   // the rows (and columns) the Newton system makes identity ones
+  // K where J differs from it: whole rows (sRows, CSR over J's pattern) and single entries of
+  // the other rows (dPos into J's values, their row, column and K's value).
+  std::vector<char> whole;
+  std::vector<PetscInt> sRows, sPtr, sCols, dPos, dRow, dCol;
+  std::vector<PetscScalar> sVals, dVals;
+  bool captured = false;
+};
+std::vector<Bulk *> bulks;
+
+Bulk *bulkOf(long id) { return handle(bulks, id, "bulk matrix"); }
+
+long bulkCreate(long const &n) {
+  TRY(start(), "start");
+  Bulk *b = new Bulk;
+  b->n = (PetscInt)n;
+  bulks.push_back(b);
+  return (long)bulks.size() - 1;
+}
+
+// The block A (FreeFEM's, of rows rowOffset.. and columns colOffset.. of K) as a chunk: its
+// entries bucketed by row (FreeFEM keeps them in the order assembly made them), each row's
+// columns sorted. FreeFEM's own sort (CSR()) is not used: it is a heap sort of the whole.
+long bulkAdd(long const &id, Matrice_Creuse<double> *const &A, long const &rowOffset, long const &colOffset) {
+  Bulk *b = bulkOf(id);
+  if (!b) return fail(PETSC_ERR_ARG_OUTOFRANGE, "bulk block");
+  MatriceMorse<double> *m = A->A ? dynamic_cast<MatriceMorse<double> *>(&*A->A) : nullptr;
+  if (!m || m->half || b->J || rowOffset < 0 || colOffset < 0 || rowOffset + m->n > b->n ||
+      colOffset + m->m > b->n) {
+    lastMessage = "a bulk block must be a full sparse matrix inside K, given before K is assembled";
+    return fail(PETSC_ERR_ARG_WRONG, "bulk block");
   }
-  (*k)->CSR();
-  (*t)->CSR();
+  Bulk::Chunk c;
+  c.row0 = (PetscInt)rowOffset;
+  c.col0 = (PetscInt)colOffset;
+  size_t nnz = m->nnz;
+  c.ptr.assign(m->n + 1, 0);
+  for (size_t k = 0; k < nnz; ++k) ++c.ptr[m->i[k] + 1];
+  for (long r = 0; r < m->n; ++r) c.ptr[r + 1] += c.ptr[r];
+  std::vector<PetscInt> fill(c.ptr.begin(), c.ptr.end() - 1);
+  c.col.resize(nnz);
+  c.val.resize(nnz);
+  for (size_t k = 0; k < nnz; ++k) {
+    PetscInt q = fill[m->i[k]]++;
+    c.col[q] = m->j[k] + c.col0;
+    c.val[q] = m->aij[k];
+  }
+  std::vector<std::pair<PetscInt, PetscScalar>> row;
+  for (long r = 0; r < m->n; ++r) {
+    row.clear();
+    for (PetscInt q = c.ptr[r]; q < c.ptr[r + 1]; ++q) row.emplace_back(c.col[q], c.val[q]);
+    std::sort(row.begin(), row.end(), [](const std::pair<PetscInt, PetscScalar> &x,
+                                         const std::pair<PetscInt, PetscScalar> &y) { return x.first < y.first; });
+    for (size_t k = 0; k < row.size(); ++k) {
+      c.col[c.ptr[r] + k] = row[k].first;
+      c.val[c.ptr[r] + k] = row[k].second;
+    }
+  }
+  b->chunks.push_back(std::move(c));
   return 0;
 }
 
-// The operator's pattern: K's extended by T's, built once per T pattern, values zero. Row by
-// row into an exactly preallocated matrix: no CSR copy of K is ever held beside it (a copy of
-// K's values and columns, a CSR matrix made from them and its duplicate were three copies of K
-// at the first step, and the last one stayed for every step: issue 30's profile).
-PetscErrorCode sumPattern(Context &c, MatriceMorse<double> *k, MatriceMorse<double> *t) {
-  auto rowUnion = [&](int i, std::vector<PetscInt> *cols) {
-    cols->clear();
-    int a = k->p[i], ae = k->p[i + 1], b = t->p[i], be = t->p[i + 1];
-    while (a < ae || b < be) {
-      if (b >= be || (a < ae && k->j[a] < t->j[b])) cols->push_back(k->j[a++]);
-      else if (a >= ae || t->j[b] < k->j[a]) cols->push_back(t->j[b++]);
-      else { cols->push_back(k->j[a]); ++a; ++b; }
+// K from its chunks into an exactly preallocated PETSc matrix, each chunk freed once in: row by
+// row the chunks in the order of their columns, so each row is filled from left to right.
+PetscErrorCode assembleChunks(Bulk &b) {
+  std::stable_sort(b.chunks.begin(), b.chunks.end(),
+                   [](const Bulk::Chunk &x, const Bulk::Chunk &y) { return x.col0 < y.col0; });
+  std::vector<PetscInt> counts(b.n, 0);
+  PetscInt total = 0;
+  for (const Bulk::Chunk &c : b.chunks)
+    for (size_t r = 0; r + 1 < c.ptr.size(); ++r) counts[c.row0 + r] += c.ptr[r + 1] - c.ptr[r];
+  for (PetscInt r = 0; r < b.n; ++r) total += counts[r];
+  PetscCall(MatCreate(PETSC_COMM_SELF, &b.J));
+  PetscCall(MatSetSizes(b.J, b.n, b.n, b.n, b.n));
+  PetscCall(MatSetType(b.J, MATSEQAIJ));
+  PetscCall(MatSeqAIJSetPreallocation(b.J, 0, counts.data()));
+  PetscCall(MatSetOption(b.J, MAT_NEW_NONZERO_ALLOCATION_ERR, PETSC_TRUE));
+  for (Bulk::Chunk &c : b.chunks) {
+    for (size_t r = 0; r + 1 < c.ptr.size(); ++r) {
+      PetscInt row = c.row0 + (PetscInt)r, count = c.ptr[r + 1] - c.ptr[r];
+      if (count)
+        PetscCall(MatSetValues(b.J, 1, &row, count, c.col.data() + c.ptr[r], c.val.data() + c.ptr[r], INSERT_VALUES));
     }
-  };
-  std::vector<PetscInt> counts(k->n), cols;
-  size_t widest = 0;
-  for (int i = 0; i < k->n; ++i) {
-    rowUnion(i, &cols);
-    counts[i] = (PetscInt)cols.size();
-    widest = std::max(widest, cols.size());
+    std::vector<PetscInt>().swap(c.ptr);
+    std::vector<PetscInt>().swap(c.col);
+    std::vector<PetscScalar>().swap(c.val);
   }
-  std::vector<PetscScalar> zeros(widest, 0.0);
-  PetscCall(MatDestroy(&c.op));
-  PetscCall(MatCreate(PETSC_COMM_SELF, &c.op));
-  PetscCall(MatSetSizes(c.op, k->n, k->n, k->n, k->n));
-  PetscCall(MatSetType(c.op, MATSEQAIJ));
-  PetscCall(MatSeqAIJSetPreallocation(c.op, 0, counts.data()));
-  for (PetscInt i = 0; i < k->n; ++i) {
-    rowUnion((int)i, &cols);
-    PetscCall(MatSetValues(c.op, 1, &i, (PetscInt)cols.size(), cols.data(), zeros.data(), INSERT_VALUES));
+  b.chunks.clear();
+  PetscCall(MatAssemblyBegin(b.J, MAT_FINAL_ASSEMBLY));
+  PetscCall(MatAssemblyEnd(b.J, MAT_FINAL_ASSEMBLY));
+  MatInfo info;
+  PetscCall(MatGetInfo(b.J, MAT_LOCAL, &info));
+  if ((PetscInt)info.nz_used != total) {
+    lastMessage = "two bulk blocks overlap (" + std::to_string((long)info.nz_used) + " entries where the blocks have " +
+                  std::to_string(total) + ")";
+    return PETSC_ERR_ARG_WRONG;
   }
-  PetscCall(MatAssemblyBegin(c.op, MAT_FINAL_ASSEMBLY));
-  return MatAssemblyEnd(c.op, MAT_FINAL_ASSEMBLY);
+  return 0;
 }
 
-// op's values := K's, zero where only T has an entry (each step starts from K again, in
-// place). *fits is false when an entry of K has no place in op's pattern.
-PetscErrorCode fillFromK(Mat op, MatriceMorse<double> *k, bool *fits) {
-  PetscInt n;
-  const PetscInt *ia, *ja;
+long bulkAssemble(long const &id) {
+  Bulk *b = bulkOf(id);
+  if (!b) return fail(PETSC_ERR_ARG_OUTOFRANGE, "bulk matrix");
+  if (!b->J) TRY(assembleChunks(*b), "bulk matrix");
+  return 0;
+}
+
+// Row i of the sequential AIJ matrix m: its columns and values, in place.
+struct Rows {
+  PetscInt n = 0;
+  const PetscInt *ia = nullptr, *ja = nullptr;
+  PetscScalar *a = nullptr;
+  Mat m = nullptr;
+};
+PetscErrorCode openRows(Mat m, Rows *r) {
   PetscBool done;
-  PetscCall(MatGetRowIJ(op, 0, PETSC_FALSE, PETSC_FALSE, &n, &ia, &ja, &done));
-  *fits = done && n == k->n;
-  if (*fits) {
-    PetscScalar *a;
-    PetscCall(MatSeqAIJGetArray(op, &a));
-    for (PetscInt i = 0; i < n && *fits; ++i) {
-      PetscInt p = ia[i], pe = ia[i + 1];
-      for (int q = k->p[i]; q < k->p[i + 1] && *fits; ++q) {
-        while (p < pe && ja[p] < k->j[q]) a[p++] = 0.0;
-        *fits = p < pe && ja[p] == k->j[q];
-        if (*fits) a[p++] = k->aij[q];
-      }
-      while (p < pe) a[p++] = 0.0;
-    }
-    PetscCall(MatSeqAIJRestoreArray(op, &a));
+  r->m = m;
+  PetscCall(MatGetRowIJ(m, 0, PETSC_FALSE, PETSC_FALSE, &r->n, &r->ia, &r->ja, &done));
+  if (!done) {
+    lastMessage = "the matrix has no row structure to read";
+    return PETSC_ERR_SUP;
   }
-  return MatRestoreRowIJ(op, 0, PETSC_FALSE, PETSC_FALSE, &n, &ia, &ja, &done);
+  return MatSeqAIJGetArray(m, &r->a);
+}
+PetscErrorCode closeRows(Rows *r) {
+  PetscBool done;
+  PetscCall(MatSeqAIJRestoreArray(r->m, &r->a));
+  return MatRestoreRowIJ(r->m, 0, PETSC_FALSE, PETSC_FALSE, &r->n, &r->ia, &r->ja, &done);
+}
+
+// J := K again, from the values kept aside.
+PetscErrorCode restoreK(Bulk &b) {
+  if (b.clean) return 0;
+  Rows r;
+  PetscCall(openRows(b.J, &r));
+  for (size_t s = 0; s < b.sRows.size(); ++s)
+    for (PetscInt p = r.ia[b.sRows[s]], q = b.sPtr[s]; q < b.sPtr[s + 1]; ++p, ++q) r.a[p] = b.sVals[q];
+  for (size_t d = 0; d < b.dPos.size(); ++d) r.a[b.dPos[d]] = b.dVals[d];
+  PetscCall(closeRows(&r));
+  b.clean = true;
+  return 0;
+}
+
+// Keeps aside K's values (J clean) where J will differ from it: the rows marked in b.whole,
+// and the Dirichlet columns of every other row.
+PetscErrorCode captureK(Bulk &b) {
+  std::vector<char> dirichletColumn(b.n, 0);
+  for (PetscInt i : b.dirichlet) dirichletColumn[i] = 1;
+  b.sRows.clear(); b.sPtr.assign(1, 0); b.sCols.clear(); b.sVals.clear();
+  b.dPos.clear(); b.dRow.clear(); b.dCol.clear(); b.dVals.clear();
+  Rows r;
+  PetscCall(openRows(b.J, &r));
+  for (PetscInt i = 0; i < b.n; ++i) {
+    if (b.whole[i]) {
+      b.sRows.push_back(i);
+      for (PetscInt p = r.ia[i]; p < r.ia[i + 1]; ++p) { b.sCols.push_back(r.ja[p]); b.sVals.push_back(r.a[p]); }
+      b.sPtr.push_back((PetscInt)b.sCols.size());
+      continue;
+    }
+    for (PetscInt p = r.ia[i]; p < r.ia[i + 1]; ++p)
+      if (dirichletColumn[r.ja[p]]) {
+        b.dPos.push_back(p); b.dRow.push_back(i); b.dCol.push_back(r.ja[p]); b.dVals.push_back(r.a[p]);
+      }
+  }
+  std::cout << "bulk: K kept aside where K + T differs: " << b.sCols.size() << " entries in " << b.sRows.size()
+            << " whole rows, " << b.dPos.size() << " in Dirichlet columns, of " << r.ia[b.n] << std::endl;
+  PetscCall(closeRows(&r));
+  b.captured = true;
+  return 0;
+}
+
+// J (clean) with its pattern extended by t's, values K's (zero where only t has an entry).
+PetscErrorCode extendPattern(Bulk &b, Mat t) {
+  std::vector<PetscInt> counts(b.n), cols;
+  std::vector<PetscScalar> vals;
+  auto rowUnion = [&](PetscInt i) -> PetscErrorCode {
+    PetscInt nk, nt;
+    const PetscInt *ck, *ct;
+    const PetscScalar *vk;
+    cols.clear(); vals.clear();
+    PetscCall(MatGetRow(b.J, i, &nk, &ck, &vk));
+    PetscCall(MatGetRow(t, i, &nt, &ct, nullptr));
+    PetscInt a = 0, c = 0;
+    while (a < nk || c < nt) {
+      if (c >= nt || (a < nk && ck[a] < ct[c])) { cols.push_back(ck[a]); vals.push_back(vk[a]); ++a; }
+      else if (a >= nk || ct[c] < ck[a]) { cols.push_back(ct[c]); vals.push_back(0.0); ++c; }
+      else { cols.push_back(ck[a]); vals.push_back(vk[a]); ++a; ++c; }
+    }
+    PetscCall(MatRestoreRow(t, i, &nt, &ct, nullptr));
+    return MatRestoreRow(b.J, i, &nk, &ck, &vk);
+  };
+  for (PetscInt i = 0; i < b.n; ++i) {
+    PetscCall(rowUnion(i));
+    counts[i] = (PetscInt)cols.size();
+  }
+  Mat wider;
+  PetscCall(MatCreate(PETSC_COMM_SELF, &wider));
+  PetscCall(MatSetSizes(wider, b.n, b.n, b.n, b.n));
+  PetscCall(MatSetType(wider, MATSEQAIJ));
+  PetscCall(MatSeqAIJSetPreallocation(wider, 0, counts.data()));
+  for (PetscInt i = 0; i < b.n; ++i) {
+    PetscCall(rowUnion(i));
+    PetscCall(MatSetValues(wider, 1, &i, (PetscInt)cols.size(), cols.data(), vals.data(), INSERT_VALUES));
+  }
+  PetscCall(MatAssemblyBegin(wider, MAT_FINAL_ASSEMBLY));
+  PetscCall(MatAssemblyEnd(wider, MAT_FINAL_ASSEMBLY));
+  PetscCall(MatDestroy(&b.J));
+  b.J = wider;
+  b.captured = false;
+  return 0;
 }
 
 // Whether every entry of t has a place in a's pattern.
@@ -545,29 +717,133 @@ PetscErrorCode within(Mat t, Mat a, bool *inside) {
   return 0;
 }
 
-// The operator K + T with Dirichlet rows and columns as identity ones, in the one PETSc matrix
-// op: K's values written into it from FreeFEM's K, then T added (T lives on Gamma_3's rows).
-// FreeFEM never forms K + T, and PETSc holds no copy of K beside op.
-PetscErrorCode sumOperator(Context &c, Matrice_Creuse<double> *K, Matrice_Creuse<double> *T) {
-  MatriceMorse<double> *k, *tm;
-  PetscCall(morsePair(K, T, &k, &tm));
+// J := K + T with the Dirichlet rows and columns identity ones. *widened: J's pattern had
+// to grow for T (a new matrix: no preconditioner of the old one may be reused).
+PetscErrorCode sumOperator(Bulk &b, Matrice_Creuse<double> *T, bool *widened) {
   Mat t;
   PetscCall(toPetsc(T, &t));
-  bool inside = false, fits = false;
-  if (c.op) PetscCall(within(t, c.op, &inside));
-  if (inside) PetscCall(fillFromK(c.op, k, &fits));
-  if (!fits) {
-    PetscCall(sumPattern(c, k, tm));
-    PetscCall(fillFromK(c.op, k, &fits));
-    if (!fits) {
-      lastMessage = "K's entries do not fit the pattern of K + T";
-      return PETSC_ERR_PLIB;
-    }
-    PetscCall(dirichletRows(c.op, &c.dirichlet));
+  PetscInt n;
+  PetscCall(MatGetSize(t, &n, nullptr));
+  if (n != b.n) {
+    MatDestroy(&t);
+    lastMessage = "the contact tangent has " + std::to_string(n) + " rows where K has " + std::to_string(b.n);
+    return PETSC_ERR_ARG_SIZ;
   }
-  PetscCall(MatAXPY(c.op, 1.0, t, SUBSET_NONZERO_PATTERN));
+  PetscCall(restoreK(b));
+  bool inside = false;
+  PetscCall(within(t, b.J, &inside));
+  *widened = !inside;
+  if (!inside) PetscCall(extendPattern(b, t));
+  if (b.whole.size() != (size_t)b.n) b.whole.assign(b.n, 0);
+  for (PetscInt i : b.dirichlet)
+    if (!b.whole[i]) { b.whole[i] = 1; b.captured = false; }
+  for (PetscInt i = 0; i < n; ++i) {
+    PetscInt nt;
+    PetscCall(MatGetRow(t, i, &nt, nullptr, nullptr));
+    if (nt && !b.whole[i]) { b.whole[i] = 1; b.captured = false; }
+    PetscCall(MatRestoreRow(t, i, &nt, nullptr, nullptr));
+  }
+  if (!b.captured) PetscCall(captureK(b));
+  PetscCall(MatAXPY(b.J, 1.0, t, SUBSET_NONZERO_PATTERN));
   PetscCall(MatDestroy(&t));
-  return MatZeroRowsColumns(c.op, (PetscInt)c.dirichlet.size(), c.dirichlet.data(), 1.0, nullptr, nullptr);
+  PetscCall(MatZeroRowsColumns(b.J, (PetscInt)b.dirichlet.size(), b.dirichlet.data(), 1.0, nullptr, nullptr));
+  b.clean = false;
+  return 0;
+}
+
+PetscErrorCode vectorOf(KN<double> *v, PetscInt n, Vec *out) {
+  if (v->N() != n) {
+    lastMessage = "a vector of size " + std::to_string(v->N()) + " where K has " + std::to_string(n) + " rows";
+    return PETSC_ERR_ARG_SIZ;
+  }
+  return VecCreateSeqWithArray(PETSC_COMM_SELF, 1, n, (PetscScalar *)(double *)*v, out);
+}
+
+// y = K x in every row (the Dirichlet rows are K's own): J x, corrected where J is not K.
+PetscErrorCode multiplyK(Bulk &b, KN<double> *x, KN<double> *y) {
+  Vec vx, vy;
+  PetscCall(vectorOf(x, b.n, &vx));
+  PetscCall(vectorOf(y, b.n, &vy));
+  PetscCall(MatMult(b.J, vx, vy));
+  PetscCall(VecDestroy(&vx));
+  PetscCall(VecDestroy(&vy));
+  if (b.clean) return 0;
+  for (size_t s = 0; s < b.sRows.size(); ++s) {
+    double sum = 0;
+    for (PetscInt q = b.sPtr[s]; q < b.sPtr[s + 1]; ++q) sum += b.sVals[q] * (*x)[b.sCols[q]];
+    (*y)[b.sRows[s]] = sum;
+  }
+  for (size_t d = 0; d < b.dPos.size(); ++d) (*y)[b.dRow[d]] += b.dVals[d] * (*x)[b.dCol[d]];
+  return 0;
+}
+
+long bulkMult(long const &id, KN<double> *const &x, KN<double> *const &y) {
+  Bulk *b = bulkOf(id);
+  if (!b || !b->J) return fail(PETSC_ERR_ARG_WRONGSTATE, "K x");
+  if (y->N() != b->n) y->resize(b->n);
+  TRY(multiplyK(*b, x, y), "K x");
+  return 0;
+}
+
+long bulkDiagonal(long const &id, KN<double> *const &d) {
+  Bulk *b = bulkOf(id);
+  if (!b || !b->J) return fail(PETSC_ERR_ARG_WRONGSTATE, "K's diagonal");
+  if (d->N() != b->n) d->resize(b->n);
+  TRY(restoreK(*b), "K's diagonal");
+  Vec vd;
+  TRY(vectorOf(d, b->n, &vd), "K's diagonal");
+  TRY(MatGetDiagonal(b->J, vd), "K's diagonal");
+  VecDestroy(&vd);
+  return 0;
+}
+
+// The Newton system's Dirichlet dofs (mask != 0): identity rows and columns in K + T.
+long bulkDirichlet(long const &id, KN<double> *const &mask) {
+  Bulk *b = bulkOf(id);
+  if (!b || !b->J || mask->N() != b->n) return fail(PETSC_ERR_ARG_SIZ, "Dirichlet dofs");
+  TRY(restoreK(*b), "Dirichlet dofs");
+  b->dirichlet.clear();
+  for (PetscInt i = 0; i < b->n; ++i) if ((*mask)[i] != 0) b->dirichlet.push_back(i);
+  b->captured = false;
+  return 0;
+}
+
+// K's entries, one "i j value" line each (0-based, rows sorted), under the header FreeFEM
+// writes for its own sparse matrices ("n m nnz half fortran state"), for a test that compares
+// K with FreeFEM's.
+PetscErrorCode writeK(Bulk &b, const std::string &file) {
+  PetscCall(restoreK(b));
+  std::ofstream out(file.c_str());
+  out.precision(20);
+  Rows r;
+  PetscCall(openRows(b.J, &r));
+  out << "#  the bulk matrix K held by PETSc, as FreeFEM writes a sparse matrix\n"
+      << "#    n       m        nnz     half     fortran   state\n"
+      << b.n << " " << b.n << " " << r.ia[b.n] << " 0 0 2\n";
+  for (PetscInt i = 0; i < b.n; ++i)
+    for (PetscInt p = r.ia[i]; p < r.ia[i + 1]; ++p) out << i << " " << r.ja[p] << " " << r.a[p] << "\n";
+  PetscCall(closeRows(&r));
+  if (!out) {
+    lastMessage = "cannot write " + file;
+    return PETSC_ERR_FILE_WRITE;
+  }
+  return 0;
+}
+
+long bulkWrite(long const &id, string *const &file) {
+  Bulk *b = bulkOf(id);
+  if (!b || !b->J) return fail(PETSC_ERR_ARG_WRONGSTATE, "writing K");
+  TRY(writeK(*b, *file), "writing K");
+  return 0;
+}
+
+long bulkDestroy(long const &id) {
+  Bulk *b = id >= 0 && id < (long)bulks.size() ? bulks[id] : nullptr;
+  if (!b) return 0;
+  MatDestroy(&b->J);   // a solver context still using it keeps its own reference
+  delete b;
+  bulks[id] = nullptr;
+  return 0;
 }
 
 long krylov(Context *c, KN<double> *b, KN<double> *x, double rtol, long reuse);
@@ -595,17 +871,31 @@ long solve(long const &id, Matrice_Creuse<double> *const &A, KN<double> *const &
   return krylov(c, b, x, rtol, reuse);
 }
 
-// The same with the operator K + T, K the same matrix at every call (the Newton method's
-// bulk matrix) and T its low-rank change (the contact tangent).
-long solveSum(long const &id, Matrice_Creuse<double> *const &K, Matrice_Creuse<double> *const &T,
-              KN<double> *const &b, KN<double> *const &x, double const &rtol, long const &reuse) {
+// The same with the operator K + T: K the bulk matrix `bulk` (petscBulk*), T its low-rank
+// change (the contact tangent, on Gamma_3's rows), the Dirichlet dofs K's.
+long solveBulk(long const &id, long const &bulk, Matrice_Creuse<double> *const &T, KN<double> *const &b,
+               KN<double> *const &x, double const &rtol, long const &reuse) {
   Context *c = context(id);
   if (!c) return fail(PETSC_ERR_ARG_OUTOFRANGE, "solve");
+  Bulk *k = bulkOf(bulk);
+  if (!k || !k->J) return fail(PETSC_ERR_ARG_WRONGSTATE, "solve");
   double c0 = cpu();
-  if (reuse < 2 || !c->op) TRY(sumOperator(*c, K, T), "matrix K + T");
+  long use = reuse;
+  // A clean J holds K alone (put back for K's diagonal, say): the operator is summed again.
+  if (reuse < 2 || !c->op || k->clean) {
+    bool widened = false;
+    TRY(sumOperator(*k, T, &widened), "matrix K + T");
+    if (c->op != k->J) {
+      TRY(MatDestroy(&c->op), "matrix K + T");
+      TRY(PetscObjectReference((PetscObject)k->J), "matrix K + T");
+      c->op = k->J;
+    }
+    c->dirichlet = k->dirichlet;
+    if (widened) use = 0;
+  }
   c->cpuOperator = cpu() - c0;
   c->peakOperator = peakMb();
-  return krylov(c, b, x, rtol, reuse);
+  return krylov(c, b, x, rtol, use);
 }
 
 long krylov(Context *c, KN<double> *b, KN<double> *x, double rtol, long reuse) {
@@ -752,6 +1042,7 @@ long destroy(long const &id) {
 // PETSc finalised before FreeFEM ends (and before FreeFem++-mpi's MPI_Finalize).
 void finish() {
   for (long id = 0; id < (long)contexts.size(); ++id) destroy(id);
+  for (long id = 0; id < (long)bulks.size(); ++id) bulkDestroy(id);
   if (started) PetscFinalize();
   started = false;
 }
@@ -763,9 +1054,17 @@ static void init() {
              new OneOperator6_<long, string *, string *, KN<long> *, KN<long> *, KN<double> *, KN<double> *>(create));
   Global.Add("petscSolve", "(",
              new OneOperator6_<long, long, Matrice_Creuse<double> *, KN<double> *, KN<double> *, double, long>(solve));
-  Global.Add("petscSolveSum", "(",
-             new OneOperator7_<long, long, Matrice_Creuse<double> *, Matrice_Creuse<double> *, KN<double> *,
-                                KN<double> *, double, long>(solveSum));
+  Global.Add("petscSolveBulk", "(",
+             new OneOperator7_<long, long, long, Matrice_Creuse<double> *, KN<double> *, KN<double> *, double,
+                                long>(solveBulk));
+  Global.Add("petscBulkCreate", "(", new OneOperator1_<long, long>(bulkCreate));
+  Global.Add("petscBulkAdd", "(", new OneOperator4_<long, long, Matrice_Creuse<double> *, long, long>(bulkAdd));
+  Global.Add("petscBulkAssemble", "(", new OneOperator1_<long, long>(bulkAssemble));
+  Global.Add("petscBulkMult", "(", new OneOperator3_<long, long, KN<double> *, KN<double> *>(bulkMult));
+  Global.Add("petscBulkDiagonal", "(", new OneOperator2_<long, long, KN<double> *>(bulkDiagonal));
+  Global.Add("petscBulkDirichlet", "(", new OneOperator2_<long, long, KN<double> *>(bulkDirichlet));
+  Global.Add("petscBulkWrite", "(", new OneOperator2_<long, long, string *>(bulkWrite));
+  Global.Add("petscBulkDestroy", "(", new OneOperator1_<long, long>(bulkDestroy));
   Global.Add("petscStats", "(", new OneOperator2_<long, long, KN<double> *>(stats));
   Global.Add("petscAddLevel", "(", new OneOperator2_<long, long, Matrice_Creuse<double> *>(addLevel));
   Global.Add("petscDestroy", "(", new OneOperator1_<long, long>(destroy));

@@ -4,7 +4,7 @@
 # reference BLAS under MUMPS and UMFPACK (Debian's alternatives): at h = 1/64 the
 # factorisation drops from 1.16 s to 0.60 s (results/bench/). libfreefem++-dev brings
 # macro_ddm.idp, the mesh decomposition of a solve on MPI ranks (run.ranks > 1,
-# freefem/parallel.idp); FreeFem++-mpi, ff-mpirun and OpenMPI come with freefem++.
+# freefem/ranks.idp); FreeFem++-mpi, ff-mpirun and OpenMPI come with freefem++.
 # libpetsc-real3.18-dev (PETSc 3.18 with hypre, MUMPS, ML; mpicxx comes with it) is what the
 # project's PETSc plugin is built against on first use (run.linear_solver = "petsc",
 # harness/run/petsc_plugin.py).

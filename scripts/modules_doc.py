@@ -36,11 +36,13 @@ TAIL = """## Layout of the repository (data flows one way)
 cases/*.toml        scenes: geometry, boundary parts, material, effects, loads, contact data,
                     study; cases/hard/ the stress suite, cases/mms/ manufactured solutions
 harness/            the Python package, in the layer folders above
-freefem/            solve.edp and scheme.idp (parallel.idp on MPI ranks), which include the
-                    pieces in order, each with an include guard: the options (parameters), the
-                    integers shared with Python (contract), the only place 2D or 3D enters
-                    (dimension), the law (constitutive, contact, forms: one varf per block),
-                    the Newton loop and its pieces, the checks, the estimator, the output;
+freefem/            solve.edp and scheme.idp, the one umbrella for one rank and N MPI ranks,
+                    which includes the pieces in order, each with an include guard: the options
+                    (parameters, every one), the integers shared with Python (contract), the
+                    backend (one_rank, or on ranks ranks and parallel_newton: the mesh, the
+                    solve, the reductions, the gather), the only place 2D or 3D enters
+                    (dimension), the laws (constitutive, contact, friction, forms: one varf per
+                    block), the Newton loop and its pieces, the checks, the estimator, the output;
                     freefem/materials/ one file per material, checked by material.idp
 peer_getfem/        the GetFEM peer, run by Debian's Python (python3-getfem)
 results/            study outputs (the study targets rewrite them; no test reads them)

@@ -1,5 +1,5 @@
 """Coulomb friction (issue 23): contact.friction_law = "coulomb" bounds the tangential traction
-by mu c_nu (u_nu - g)_+ = mu p instead of Tresca's S (freefem/contact.idp, docs/laws.md).
+by mu c_nu (u_nu - g)_+ = mu p instead of Tresca's S (freefem/friction.idp, docs/laws.md).
 Known answers: a load below mu p sticks, one above it cannot be held, slipping nodes carry
 exactly mu p against the slip (2D, and at an angle in 3D), and Newton's tangent is exact
 (its bound's derivative in u_nu included): quadratic convergence, lost without it."""
@@ -138,10 +138,10 @@ def test_the_tangent_is_exact_with_the_bounds_derivative(tmp_path, case, n):
     assert main(argv + ["--results", str(exact)]) == 0
     scripts = tmp_path / "freefem"
     shutil.copytree(REPO / "freefem", scripts)
-    law = scripts / "contact.idp"
+    law = scripts / "friction.idp"
     text = law.read_text()
     spelled = "macro dSlipBound(p, dp) (slipMu0 * dp) //"
-    assert spelled in text, "contact.idp no longer spells Coulomb's dSlipBound: update this test"
+    assert spelled in text, "friction.idp no longer spells Coulomb's dSlipBound: update this test"
     law.write_text(text.replace(spelled, "macro dSlipBound(p, dp) (0. * dp) //"))
     inexact = tmp_path / "inexact"
     assert main(argv + ["--results", str(inexact), "--freefem", str(scripts)]) == 0

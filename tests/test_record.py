@@ -28,7 +28,7 @@ def written(path) -> tuple[set[str], set[str]]:
 
 def test_every_key_output_idp_writes_is_declared():
     top, checks = written(FREEFEM / "output.idp")
-    history, _ = written(FREEFEM / "json.idp")  # the Newton history, shared with parallel.json
+    history, _ = written(FREEFEM / "json.idp")  # the Newton run and the ranks' figures, output.idp's macros
     top |= history
     reference, _ = written(FREEFEM / "reference_error.idp")
     estimator, _ = written(FREEFEM / "estimator.idp")

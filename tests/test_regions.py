@@ -223,3 +223,184 @@ def test_a_bad_region_poling_is_named(tmp_path, capsys):
                  'scene.materials={lower = "PZT-5H", upper = {material = "PZT-5H", poling_axis = [0, 0]}}'])
     err = capsys.readouterr().err.strip().splitlines()
     assert code == 2 and len(err) == 1 and "scene.materials.upper: scene.poling_axis = [0, 0] has zero length" in err[0], err
+
+
+def layers_exact(z: np.ndarray, lower: str, upper: str, p: float = 1e6, t1: float = 0.5) -> np.ndarray:
+    """u along the load of two layers in series under the pressure p (tests/data/bilayer.toml)."""
+    return np.where(z <= t1, -p * z / C33[lower], -p * t1 / C33[lower] - p * (z - t1) / C33[upper])
+
+
+@pytest.mark.parametrize("n, lower, upper", [(4, "Brass", "PZT-5H"), (8, "PZT-5H", "Brass")])
+def test_the_rectangles_two_blocks_are_the_two_layers_drawn_in_gmsh(tmp_path, n, lower, upper):
+    """[geometry.blocks] on the rectangle (tests/data/bilayer_rect.toml) against the same two
+    layers drawn in gmsh (tests/data/bilayer.toml): both the exact P1 field, so equal node by node."""
+    materials = f'scene.materials={{lower = "{lower}", upper = "{upper}"}}'
+    rect = solve(DATA / "bilayer_rect.toml", n, tmp_path / "rect", materials)
+    drawn = solve(DATA / "bilayer.toml", n, tmp_path / "gmsh", materials)
+    u_rect = read_state(tmp_path / "rect" / "bilayer_rect" / f"n{n}" / "state.txt")[0].reshape(-1, 2)
+    u_gmsh = read_state(tmp_path / "gmsh" / "bilayer" / f"n{n}" / "state.txt")[0].reshape(-1, 2)
+    at_rect = np.column_stack([grid(rect.fields.points[:, k], n) for k in range(2)])
+    at_gmsh = np.column_stack([grid(drawn.fields.points[:, k], n) for k in range(2)])
+    exact = layers_exact(at_rect[:, 1], lower, upper)
+    scale = np.abs(exact).max()
+    # Round-off only: measured 6.8e-16 of max |u_y| (the gmsh scene's 5.6e-13) at n = 4.
+    assert u_rect[:, 1] == pytest.approx(exact, abs=1e-10 * scale)
+    assert np.abs(u_rect[:, 0]).max() <= 1e-10 * scale
+    # The same nodes (the lattice), matched by their coordinates.
+    order_rect, order_gmsh = np.lexsort(at_rect.T), np.lexsort(at_gmsh.T)
+    assert np.array_equal(at_rect[order_rect], at_gmsh[order_gmsh])
+    assert u_rect[order_rect] == pytest.approx(u_gmsh[order_gmsh], abs=1e-10 * scale)
+
+
+@pytest.mark.parametrize("n", [2, 4])
+def test_the_boxs_two_blocks_are_two_layers_in_series(tmp_path, n):
+    """[geometry.blocks] on the box (tests/data/bilayer_box.toml), the known answer of
+    tests/data/bilayer3d.toml on the Kuhn tetrahedra: u_z piecewise linear, exact in P1."""
+    run = solve(DATA / "bilayer_box.toml", n, tmp_path)
+    u = read_state(tmp_path / "bilayer_box" / f"n{n}" / "state.txt")[0].reshape(-1, 3)
+    exact = layers_exact(grid(run.fields.points[:, 2], n), "Brass", "PZT-5H")
+    # Round-off only: measured 1.9e-15 of max |u_z| at n = 4.
+    assert u[:, 2] == pytest.approx(exact, abs=1e-10 * np.abs(exact).max())
+    assert np.abs(u[:, :2]).max() <= 1e-10 * np.abs(exact).max()
+
+
+def test_a_rectangle_without_blocks_meshes_as_before(tmp_path):
+    """The mesh files of scenes without blocks are the bytes they were: the region labels and
+    names are written only when a scene maps blocks (the regions' label 1, 'region_1', replaces
+    the body's label 1, 'body': harness/mesh/msh.py)."""
+    from harness.mesh.mesh import build_mesh
+    from harness.scene.scene import load_scene
+    plain = load_scene(DATA / "bilayer_rect.toml", ["scene.materials={}", 'scene.material="Brass"'])
+    layered = load_scene(DATA / "bilayer_rect.toml")
+    a = build_mesh(plain.geometry, 4, tmp_path / "plain").path.read_text()
+    b = build_mesh(layered.geometry, 4, tmp_path / "layered").path.read_text()
+    assert '2 1 "body"' in a and '2 1 "region_1"' in b and '2 2 "region_2"' in b
+    # Only the triangles' physical tags differ: 1 below y = 1/2, 2 above (tests/test_mesh.py
+    # holds the plain writer to gmsh's own bytes).
+    lines_a, lines_b = a.splitlines(), b.splitlines()
+    triangles = [(x, y) for x, y in zip(lines_a[lines_a.index("$Elements"):], lines_b[lines_b.index("$Elements"):])
+                 if x.split()[1:2] == ["2"]]
+    assert triangles and all(x.split()[3] == "1" for x, _ in triangles)
+    assert {y.split()[3] for _, y in triangles} == {"1", "2"}
+
+
+BAD_BLOCKS = {
+    "overlap": ("upper = [0.0, 2.0, 0.5, 1.0]", "upper = [0.0, 2.0, 0.25, 1.0]", "'lower' and 'upper' overlap"),
+    "gap": ("upper = [0.0, 2.0, 0.5, 1.0]", "upper = [0.0, 2.0, 0.75, 1.0]", "do not cover the body"),
+    "outside": ("upper = [0.0, 2.0, 0.5, 1.0]", "upper = [0.0, 2.0, 0.5, 1.5]", "must be [x0, x1, y0, y1]"),
+    "no material": ('upper = "PZT-5H"\n', "", "geometry.blocks.upper has no material"),
+    "no block": ('upper = "PZT-5H"\n', 'upper = "PZT-5H"\nmiddle = "Brass"\n', "no block named 'middle'"),
+    "unstructured": ('diagonals = "SW-NE"', 'diagonals = "unstructured"', "need the structured lattice"),
+}
+
+
+@pytest.mark.parametrize("name", BAD_BLOCKS)
+def test_bad_blocks_are_one_line_before_anything_runs(tmp_path, capsys, name):
+    old, new, message = BAD_BLOCKS[name]
+    text = (DATA / "bilayer_rect.toml").read_text()
+    assert old in text
+    (tmp_path / "case.toml").write_text(text.replace(old, new, 1))
+    code = main(["solve", str(tmp_path / "case.toml"), "--n", "4", "--results", str(tmp_path / "results")])
+    err = capsys.readouterr().err.strip().splitlines()
+    assert code == ExitCode.INPUT == 2
+    assert len(err) == 1 and err[0].startswith("error:") and message in err[0], err
+    assert not (tmp_path / "results").exists()
+
+
+def test_a_block_off_the_levels_grid_is_named(tmp_path, capsys):
+    # The interface y = 1/2 is a grid line at even n only: at n = 3 cells would straddle it.
+    code = main(["solve", str(DATA / "bilayer_rect.toml"), "--n", "3", "--results", str(tmp_path)])
+    err = capsys.readouterr().err.strip().splitlines()
+    assert code == ExitCode.INPUT and len(err) == 1 and "block 'lower' has a side at 0.5, not a multiple of h = 1/3" in err[0], err
+
+
+# PZT-5H's beta33 [C/(V m)] (freefem/materials/PZT-5H.idp).
+BETA33 = 1.301565607e-8
+ROLLERS = 'geometry.roles={bottom = "clamped", sides = "roller_x", top = "electrode"}'
+
+
+@pytest.mark.parametrize("n", [4, 8])
+def test_a_brass_shim_tied_to_the_ground_is_an_equipotential(tmp_path, n):
+    """tests/data/shim.toml with rollers on the sides (one-dimensional) and the shim a conductor
+    tied to the ground: phi = 0 in the whole shim, and the PZT-5H layer above carries the whole
+    drive, phi = V (y - t1) / t2, free along y: u_y = -e33 V (y - t1) / (C33 t2) there, 0 in the
+    shim (sigma_yy = 0 throughout). P1-exact: round-off only (measured 7e-17 of V, 1.3e-15 of
+    u_y at n = 4). The dielectric shim of the same scene holds 1.73 % of V at its top instead."""
+    run = solve(DATA / "shim.toml", n, tmp_path, ROLLERS,
+                'scene.materials={lower = {material = "Brass", conductor = "ground"}, upper = "PZT-5H"}')
+    u, phi = read_state(tmp_path / "shim" / f"n{n}" / "state.txt")[:2]
+    y = grid(run.fields.points[:, 1], n)
+    V, t1, t2 = 100.0, 0.5, 0.5
+    # Dirichlet dofs, penalised by 1e30 (freefem/bulk.idp): the ground's 0 to ~1e-91 V.
+    assert np.abs(phi[y <= t1]).max() <= 1e-20 * V
+    assert phi == pytest.approx(np.where(y <= t1, 0.0, V * (y - t1) / t2), abs=1e-10 * V)
+    strain = -E33 * V / (t2 * C33["PZT-5H"])
+    exact = np.where(y <= t1, 0.0, strain * (y - t1))
+    u = u.reshape(-1, 2)
+    assert u[:, 1] == pytest.approx(exact, abs=1e-10 * np.abs(exact).max())
+    assert np.abs(u[:, 0]).max() <= 1e-10 * np.abs(exact).max()
+    # The electrode's charge: the layer's capacitance, free along the poling (width 2).
+    charge = (BETA33 + E33**2 / C33["PZT-5H"]) * V * 2.0 / t2
+    assert run.record.checks["electrode_charge"] == pytest.approx(charge, rel=1e-10)
+
+
+def test_a_shim_tied_to_the_electrode_carries_the_electrodes_charge(tmp_path):
+    """The shim tied to the electrode (100 V), the top earthed, rollers below and on the sides:
+    the PZT-5H layer between them sees phi = V (1 - y) / t2, and the electrode's free charge, read
+    over the shim's dofs too, is the layer's (beta33 + e33^2 / C33) V w / t2, to round-off."""
+    run = solve(DATA / "shim.toml", 4, tmp_path,
+                'geometry.roles={bottom = "roller_y", sides = "roller_x", top = "ground"}',
+                'scene.materials={lower = {material = "Brass", conductor = "electrode"}, upper = "PZT-5H"}')
+    _, phi = read_state(tmp_path / "shim" / "n4" / "state.txt")[:2]
+    y = grid(run.fields.points[:, 1], 4)
+    V, t1, t2 = 100.0, 0.5, 0.5
+    assert phi == pytest.approx(np.where(y <= t1, V, V * (1.0 - y) / t2), abs=1e-10 * V)
+    charge = (BETA33 + E33**2 / C33["PZT-5H"]) * V * 2.0 / t2
+    assert run.record.checks["electrode_charge"] == pytest.approx(charge, rel=1e-10)
+
+
+@pytest.mark.parametrize("materials, message", [
+    ('{lower = {material = "Brass", conductor = "free"}, upper = "PZT-5H"}',
+     "scene.materials.lower.conductor = 'free': a conductor region is tied to the potential of one of the roles"),
+    # Tied to the floating electrode while clamped and earthed below: freefem/floating.idp's line.
+    ('{lower = {material = "Brass", conductor = "floating"}, upper = "PZT-5H"}',
+     "node(s) of a floating electrode also belong to a part of fixed potential"),
+    ('{lower = {material = "Brass", conductor = "electrode"}, upper = "PZT-5H"}',
+     "node(s) of a conductor region would hold two potentials"),
+])
+def test_a_conductor_region_that_cannot_be_one_is_refused_in_one_line(tmp_path, capsys, materials, message):
+    # The second: the shim tied to the electrode is clamped and earthed below (phi = 0 and V at one node).
+    code = main(["solve", str(DATA / "shim.toml"), "--n", "4", "--results", str(tmp_path),
+                 "--set", f"scene.materials={materials}"])
+    err = capsys.readouterr().err.strip().splitlines()
+    assert code == ExitCode.INPUT and len(err) == 1 and message in err[0], err
+
+
+def test_a_conductor_region_without_the_potential_is_refused_in_one_line(tmp_path, capsys):
+    code = main(["solve", str(DATA / "bilayer_rect.toml"), "--n", "4", "--results", str(tmp_path), "--set",
+                 'scene.materials={lower = {material = "Brass", conductor = "ground"}, upper = "PZT-5H"}'])
+    err = capsys.readouterr().err.strip().splitlines()
+    assert code == ExitCode.INPUT and len(err) == 1, err
+    assert "scene.materials.lower.conductor = 'ground' needs the effect 'piezoelectric'" in err[0], err
+    assert not (tmp_path / "bilayer_rect").exists()
+
+
+@pytest.mark.parametrize("n", [4, 8])
+def test_a_floating_conductor_shim_sits_at_half_the_drive(tmp_path, n):
+    """tests/data/floating_shim.toml: the shim tied to the floating electrode (its dofs eliminated
+    with the electrode's, freefem/floating.idp) is one unknown potential, V/2 by the symmetry of
+    the series, with zero net charge; phi and u are the exact P1 fields (round-off only)."""
+    run = solve(DATA / "floating_shim.toml", n, tmp_path)
+    u, phi = read_state(tmp_path / "floating_shim" / f"n{n}" / "state.txt")[:2]
+    y = grid(run.fields.points[:, 1], n)
+    V, t = 100.0, 0.25
+    exact = np.where(y <= t, V / 2 * y / t, np.where(y < 1 - t, V / 2, V / 2 + V / 2 * (y - 1 + t) / t))
+    assert phi == pytest.approx(exact, abs=1e-10 * V)
+    checks = run.record.checks
+    assert checks["floating_potential"] == pytest.approx([V / 2], abs=1e-10 * V)
+    assert abs(checks["floating_charge"][0]) <= 1e-12 * checks["floating_charge_reading"][0]
+    strain = -E33 * (V / 2) / (t * C33["PZT-5H"])
+    uy = np.where(y <= t, strain * y, np.where(y < 1 - t, strain * t, strain * t + strain * (y - 1 + t)))
+    u = u.reshape(-1, 2)
+    assert u[:, 1] == pytest.approx(uy, abs=1e-10 * np.abs(uy).max())
+    assert checks["electrode_charge"] == pytest.approx((BETA33 + E33**2 / C33["PZT-5H"]) * (V / 2) * 2.0 / t, rel=1e-10)

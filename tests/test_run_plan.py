@@ -71,7 +71,9 @@ def test_a_distributed_plan_carries_its_sequential_pass(tmp_path):
     scene = load_scene(CASES / "paper.toml", ["run.ranks=2", 'run.coarse_space="none"', 'scene.initial_guess="zero"'])
     mesh = level_mesh(scene, 8, layout)
     plan = make_plan(scene, mesh, 8, layout, None)
-    assert plan.post is not None and "parallel.idp" in plan.main.script and "parallel.idp" not in plan.post.script
+    # The main script is the scheme's N-rank backend (freefem/ranks.idp), the pass's the one-rank one.
+    ranks = "macro PARALLELSCHEME 1 //"
+    assert plan.post is not None and ranks in plan.main.script and ranks not in plan.post.script
     work = tmp_path / "work"
     options = plan.post.bound(work)
     assert options[options.index("-init.state") + 1] == str((work / PARALLEL_STATE).resolve())

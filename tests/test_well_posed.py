@@ -87,3 +87,19 @@ def test_the_refusal_is_exit_2_with_one_line_before_anything_runs(tmp_path, caps
     assert code == ExitCode.INPUT == 2
     assert len(err) == 1 and err[0].startswith("error:") and "u is not fixed" in err[0], err
     assert not (tmp_path / "results").exists()
+
+
+def test_a_body_that_only_slipping_friction_holds_fails_with_one_line_saying_so(tmp_path, capsys):
+    """The rule above accepts the paper's scene with both ends free (friction holds it), but
+    at S = 8.5 every contact node slips under the contact's heating: nothing holds the body
+    along the contact and Newton cannot settle a slide (exit 3). The one error line says why
+    and what would hold it (freefem/newton.idp, docs/geometry.md); at S = 50 the middle node
+    sticks and the same scene converges."""
+    sets = [word for item in FREE_ENDS for word in ("--set", item)]
+    code = main(["solve", str(PAPER), "--n", "2", "--results", str(tmp_path / "slips"), *sets])
+    err = capsys.readouterr().err.strip().splitlines()
+    assert code == ExitCode.RUN == 3
+    assert len(err) == 1 and err[0].startswith("error:"), err
+    assert "every contact node slips" in err[0] and "clamp a part, add rollers or raise the slip bound" in err[0]
+    held = main(["solve", str(PAPER), "--n", "2", "--results", str(tmp_path / "sticks"), *sets, "--set", "contact.S=50"])
+    assert held == ExitCode.OK

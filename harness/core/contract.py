@@ -113,7 +113,8 @@ class Failure(enum.Enum):
 # The codes FreeFEM scripts of this project raise themselves (the others are FreeFEM's own).
 SCRIPT_FAILURES = (Failure.DIVERGED, Failure.NAN, Failure.MAX_ITERATIONS, Failure.BAD_INITIAL_GUESS,
                    Failure.INVALID_MATERIAL, Failure.BAD_DECOMPOSITION, Failure.BAD_SOLVER_OPTIONS,
-                   Failure.LINEAR_SOLVER, Failure.BAD_ELECTRODES, Failure.BAD_FLOATING)
+                   Failure.LINEAR_SOLVER, Failure.BAD_ELECTRODES, Failure.BAD_FLOATING,
+                   Failure.INTERNAL)  # INTERNAL: the PETSc plugin refusing a bulk block (freefem/bulk.idp)
 
 
 def contract_idp() -> str:

@@ -35,14 +35,24 @@ DOFS_3D_MEASURED = 93_925
 # h = 1/64 425 MiB for 66,820 dofs (6.7 kB: the matrix is held three times, FreeFEM's K and
 # K + T and PETSc's copy, beside the AMG hierarchies). Rounded up.
 BYTES_PER_DOF_ITERATIVE = {2: 7e3, 3: 14.5e3}
-# Geometric multigrid (-pc_type mg over the nested meshes, run.multigrid_levels): K and the
-# tangent in FreeFEM, PETSc's copy, the ILU(0) smoother of the finest level (the matrix's
-# pattern again), the Galerkin levels (1/8 or 1/4 of it each) and the LU of the coarsest
-# (n = 8, a fixed cost). Measured (VmHWM, results/paper3d/summary.json, docs/solvers.md):
-# 2D h = 1/64 235 MiB for 66,820 dofs (3.69 kB), 1/128 743 MiB for 264,708 (2.94 kB),
-# 1/512 10,739 MiB for 4,204,548 (2.68 kB); 3D h = 1/16 665 MiB for 93,925 (7.43 kB),
-# 1/32 4,044 MiB for 702,405 (6.04 kB). The largest, rounded up.
-BYTES_PER_DOF_MULTIGRID = {2: 3.7e3, 3: 7.5e3}
+# Geometric multigrid (-pc_type mg over the nested meshes, run.multigrid_levels) holds, per
+# unknown, the plugin's one matrix (K, then K + T: FreeFEM holds no K on the PETSc path,
+# freefem/bulk.idp), the ILU(0) smoother of the finest level (that pattern again), the
+# Galerkin levels and the Krylov vectors; and, fixed, FreeFEM's start-up and the LU of the
+# coarsest level (n = 8, run.multigrid_coarsest's default), whose fill grows faster than its
+# unknowns: like N^(4/3) in 3D (nested dissection, George, SIAM J. Numer. Anal. 10, 1973) and,
+# taken as the same power, in 2D. Fitted to the paper's scenes (VmHWM, docs/solvers.md):
+# 3D h = 1/2, 1/4, 1/8, 1/16, 1/32: 66, 75, 187, 393, 1,947 MiB for 405, 2,125, 13,365,
+# 93,925, 702,405 dofs; 2D h = 1/8 ... 1/128: 65, 70, 89, 168, 476 MiB for 1,188, 4,420,
+# 17,028, 66,820, 264,708 dofs. At 3D 1/32 the matrices' share is 2.7 kB per dof; below
+# n = 8 the level's own LU is the coarse solve.
+MULTIGRID_START_MIB = {2: 60.0, 3: 60.0}
+MULTIGRID_MIB_PER_DOF = {2: 1.58e-3, 3: 2.55e-3}
+# The LU of the paper's coarsest level (dofs, MiB): 3D n = 8, 2D n = 8; another size scales it.
+MULTIGRID_COARSE_LU = {2: (1_188, 3.5), 3: (13_365, 93.0)}
+MULTIGRID_COARSEST = 8
+# The measured peaks lie within 6 % below the fit; the guard counts 10 % above it.
+MULTIGRID_MARGIN = 1.1
 # MSH 2.2 text per mesh node: a node line (~60 characters) and two triangle lines (~30
 # each); in 3D, six tetrahedron lines (~40 each).
 MSH_BYTES_PER_NODE = {2: 150, 3: 320}
@@ -123,13 +133,27 @@ def memory_estimate(width: float, height: float, n: int, effects: tuple[str, ...
     if not factorises:
         dimension = 2 if depth is None else 3
         dofs = unknowns_per_node(effects, dimension) * nodes
-        per_dof = (BYTES_PER_DOF_MULTIGRID if multigrid else BYTES_PER_DOF_ITERATIVE)[dimension]
-        return dofs, per_dof * dofs
+        if multigrid:
+            return dofs, multigrid_bytes(width, height, n, effects, element, depth, nodes_at, dofs)
+        return dofs, BYTES_PER_DOF_ITERATIVE[dimension] * dofs
     if depth is None:
         dofs = unknowns_per_node(effects) * nodes
         return dofs, BASE_BYTES + BYTES_PER_DOF * dofs
     dofs = unknowns_per_node(effects, 3) * nodes
     return dofs, BYTES_PER_DOF_3D * dofs * max(1.0, dofs / DOFS_3D_MEASURED) ** (1 / 3)
+
+
+def multigrid_bytes(width: float, height: float, n: int, effects: tuple[str, ...], element: str,
+                    depth: float | None, nodes_at: NodesAt | None, dofs: int) -> float:
+    """The peak of a geometric multigrid's run of `dofs` unknowns at level n (see
+    MULTIGRID_START_MIB): start-up, the matrices per unknown, the coarsest level's LU."""
+    dimension = 2 if depth is None else 3
+    coarse = level_nodes(width, height, min(n, MULTIGRID_COARSEST), element, depth, nodes_at)
+    coarse_dofs = unknowns_per_node(effects, dimension) * coarse
+    reference_dofs, reference_mib = MULTIGRID_COARSE_LU[dimension]
+    mib = (MULTIGRID_START_MIB[dimension] + MULTIGRID_MIB_PER_DOF[dimension] * dofs
+           + reference_mib * (coarse_dofs / reference_dofs) ** (4 / 3))
+    return MULTIGRID_MARGIN * mib * 2**20
 
 
 def available_memory() -> float:

@@ -25,6 +25,7 @@ from harness.mesh import box_mesh, gmsh_mesh, rectangle_mesh
 from harness.mesh.mesh_check import MeshSummary, check_arrays
 from harness.mesh.msh import AS_GMSH, AS_MESHIO, MshStyle, write_msh
 from harness.mesh.simplex import SimplexMesh, quality, quality_warning, role_measures
+from harness.scene.blocks import block_labels, check_on_grid
 from harness.scene.box import Box
 from harness.scene.gmsh_geometry import GmshGeometry
 from harness.scene.segments import Geometry
@@ -81,7 +82,9 @@ def checked_level(geometry: Geometry | Box | GmshGeometry, n: int,
     the file took 41 % of the finest rectangle's time at n = 64), its summary (path left
     empty) and the style its file has always had (harness/mesh/msh.py)."""
     if isinstance(geometry, Box):
-        level = box_mesh.generate(geometry, n)
+        if geometry.diagonals != "unstructured":  # gmsh's tetrahedra follow the blocks' faces (Box.cuts)
+            check_on_grid(geometry.blocks, n)
+        level = with_regions(box_mesh.generate(geometry, n), geometry)
         areas = check_role_areas(level, geometry, n)
         return level, MeshSummary(Path(), n, len(level.points), len(level.cells), areas), AS_MESHIO
     if isinstance(geometry, GmshGeometry):
@@ -94,8 +97,18 @@ def checked_level(geometry: Geometry | Box | GmshGeometry, n: int,
                   "Mesh.OptimizeNetgen)", file=sys.stderr, flush=True)
         summary = MeshSummary(Path(), n, len(level.points), len(level.cells), role_measures(level), measured)
         return level, summary, AS_MESHIO
-    level = rectangle_mesh.generate(geometry, n)
+    check_on_grid(geometry.blocks, n)
+    level = with_regions(rectangle_mesh.generate(geometry, n), geometry)
     return level, check_arrays(level.points, level.cells, level.facets, level.labels, geometry, n), AS_GMSH
+
+
+def with_regions(level: SimplexMesh, geometry: Geometry | Box) -> SimplexMesh:
+    """`level` with each cell's region label when the scene maps its blocks to materials
+    (harness/scene/blocks.py); as generated otherwise, so its file keeps its bytes."""
+    if not geometry.regions:
+        return level
+    centroids = level.points[level.cells].mean(axis=1)
+    return replace(level, regions=block_labels(geometry.blocks, geometry.regions, centroids))
 
 
 def check_role_areas(level: SimplexMesh, box: Box, n: int) -> dict[str, float]:

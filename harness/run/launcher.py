@@ -1,20 +1,22 @@
 """One level on several MPI ranks (run.ranks > 1): the launcher command, its environment,
 and the sequential pass that reads the checks and outputs of the gathered state.
 
-The distributed Newton solve is freefem/parallel.idp under FreeFem++-mpi, started by
+The distributed Newton solve is freefem/scheme.idp with its N-rank backend (freefem/ranks.idp)
+under FreeFem++-mpi, started by
 `run.launcher` (default `ff-mpirun -np {ranks}`; on a cluster e.g.
 `srun -n {ranks} FreeFem++-mpi`). It writes parallel_state.txt (the state on the global
-mesh) and parallel.json (ranks, per-rank memory, Krylov iterations, wall split). Then one
-sequential pass of the ordinary scheme starts from that state with no Newton step
+mesh) and ranks_record.txt (the Newton run, per-rank memory, Krylov solver, wall split). Then
+one sequential pass of the ordinary scheme starts from that state with no Newton step
 (`-newton.max_iterations 0`): it assembles the residual there (no factorisation) and
 writes solution.vtu, state.txt and run.json with every check, exactly as a one-rank run
-does. run.json then takes the Newton history and the parallel figures from parallel.json.
+does, and with the ranks' Newton run and figures read from their record
+(freefem/ranks_record.idp): FreeFEM writes run.json whole; nothing here reads or mends it.
+A run that fails on the ranks has its run.json written there (the reason, the history).
 `run.ranks = 1` never comes here.
 """
 
 from __future__ import annotations
 
-import json
 import os
 import shlex
 from dataclasses import dataclass
@@ -32,15 +34,13 @@ from harness.scene.unknowns import Unknowns
 
 MPI_PLUGIN_PATH = "/usr/lib/freefem++/mpi"  # plugins built against MPI (the others abort in FreeFem++-mpi)
 IDP_PATH = "/usr/include/freefem++/idp"  # macro_ddm.idp, from Debian's libfreefem++-dev
-PARALLEL_SCHEME = "parallel.idp"
 # Launchers that pass the arguments after the script through a shell's `eval`, so a path
 # with a space or a quote would be split or mangled there: Debian's ff-mpirun builds the
 # mpiexec command as a string and runs `eval "${a[*]}"`. Each argument is quoted for it;
 # mpiexec, srun and the like pass their arguments on as given.
 EVALUATING_LAUNCHERS = ("ff-mpirun",)
-# The Newton history the distributed solve owns (run.json takes these from parallel.json).
-NEWTON_KEYS = ("converged", "reason", "newton_iterations", "residuals", "increments", "error_estimates",
-               "damping", "consistent_tangent", "active_nodes", "slip_nodes", "active_set_changes")
+# What the distributed solve hands the sequential pass (freefem/parallel_output.idp writes it).
+RANKS_RECORD = "ranks_record.txt"
 
 
 @dataclass(frozen=True)
@@ -138,6 +138,12 @@ def environment() -> dict[str, str]:
     return env
 
 
+def post_pass_options(options: list[str], work: Path) -> list[str]:
+    """The sequential pass's options: the run's, with no Newton step and the ranks' record
+    (freefem/ranks_record.idp reads their Newton run from it)."""
+    return without_newton_steps(options) + ["-ranks.record", str(work / RANKS_RECORD)]
+
+
 def without_newton_steps(options: list[str]) -> list[str]:
     """The run's options with -newton.max_iterations 0 (FreeFEM reads the first value given)."""
     out = list(options)
@@ -148,50 +154,15 @@ def without_newton_steps(options: list[str]) -> list[str]:
     return out + ["-newton.max_iterations", "0"]
 
 
-def merge_records(post: dict[str, Any], parallel: dict[str, Any]) -> dict[str, Any]:
-    """run.json of the sequential pass with the distributed solve's Newton history and figures."""
-    merged = dict(post)
-    for key in NEWTON_KEYS:
-        if key in parallel:
-            merged[key] = parallel[key]
-    per_rank = parallel.get("peak_rss_mb_per_rank", [])
-    merged.update(
-        ranks=parallel.get("ranks"),
-        linear_iterations=parallel.get("krylov_iterations"),
-        linear_solver=parallel.get("krylov"),
-        factorisations=parallel.get("factorisations"),
-        gmres_iterations=sum(parallel.get("krylov_iterations", [])),
-        # The largest rank's: what each node of a cluster must hold.
-        peak_rss_mb=max(per_rank) if per_rank else merged.get("peak_rss_mb", -1),
-        post_pass_peak_rss_mb=post.get("peak_rss_mb"),
-        post_pass_residuals=post.get("residuals"),
-        parallel={k: parallel[k] for k in ("ranks", "peak_rss_mb_per_rank", "newton_dofs_per_rank",
-                                           "contact_nodes_per_rank", "krylov_iterations", "factorisations_by_step", "krylov",
-                                           "krylov_tolerance", "overlap_layers", "coarse_space", "wall") if k in parallel},
-    )
-    return merged
-
-
-def read_json(path: Path) -> dict[str, Any] | None:
-    try:
-        value = json.loads(path.read_text())
-    except (OSError, ValueError):
-        return None
-    return value if isinstance(value, dict) else None
-
-
 def post_pass(work: Path, argv: list[str], first: freefem.Outcome, timeout_s: float) -> freefem.Outcome:
     """After a converged distributed solve in `work`: the sequential pass (argv, main.edp
-    already written), then run.json merged. Its Outcome spans both processes."""
-    parallel = read_json(work / "parallel.json")
-    if parallel is None:
-        raise RunError(f"the MPI run wrote no readable parallel.json (see {work / 'stdout.txt'})")
+    already written, options of `post_pass_options`), which writes the run's run.json. Its
+    Outcome spans both processes."""
+    if not (work / RANKS_RECORD).is_file():
+        raise RunError(f"the MPI run wrote no {RANKS_RECORD} (see {work / 'stdout.txt'})")
     (work / "mpi_stdout.txt").write_bytes((work / "stdout.txt").read_bytes())
     (work / "run.json").unlink(missing_ok=True)
     second = freefem.invoke(argv, work, max(timeout_s - first.wall_s, 1.0))
-    post = read_json(work / "run.json")
-    # With no Newton step FreeFEM reports max_iterations (its code), having written everything.
-    if second.returncode not in (0, Failure.MAX_ITERATIONS.code) or post is None:
+    if second.returncode != 0:
         return freefem.Outcome(second.returncode, first.wall_s + second.wall_s, second.peak_rss_mb)
-    (work / "run.json").write_text(json.dumps(merge_records(post, parallel), indent=2) + "\n")
     return freefem.Outcome(0, first.wall_s + second.wall_s, first.peak_rss_mb)

@@ -28,7 +28,7 @@ from harness.scene.scene import Scene
 
 # Options that name files: their content is keyed (mesh, start), not where they are.
 PATH_OPTIONS = frozenset({"-mesh", "-out", "-init.mesh", "-init.state", "-mg.mesh", "-ddm.coarse_mesh"})
-# Where the distributed solve leaves its gathered state for the sequential pass (freefem/parallel.idp).
+# Where the distributed solve leaves its gathered state for the sequential pass (freefem/parallel_output.idp).
 PARALLEL_STATE = "parallel_state.txt"
 # The value of -out until the executor names the run's directory.
 UNBOUND = "-"
@@ -133,15 +133,14 @@ def invocation(scene: Scene, mesh: Path, n: int, layout: Layout, guess: str, sta
     run). On several ranks (run.ranks > 1) the text is the distributed scheme's, unless
     `sequential`."""
     macros = {**manufactured_macros(scene, layout), **scene.reference_macros(), **scene.poling_macros(),
-              **floating_macros(scene.geometry)}
+              **floating_macros(scene.geometry, scene.sections.scene.materials)}
     parallel = launcher.ranks_of(scene).parallel and not sequential
     solver = scene.solver
     definitions = region_definitions(scene.regions, layout, scene.dimension) if scene.regions else []
     text = main_script(scene.material, scene.effects, layout, element=scene.element, macros=macros,
                        definitions=definitions, linear_solver=solver,
                        plugin=petsc_plugin.path() if solver.builds_plugin else None,
-                       scheme=layout.freefem / launcher.PARALLEL_SCHEME if parallel else None,
-                       dimension=scene.dimension)
+                       ranks=parallel, dimension=scene.dimension)
     directory = mesh.resolve().parent
     options = ["-mesh", str(mesh.resolve()), "-out", UNBOUND, "-n", str(n)]
     options += freefem.scene_options(scene.solver_parameters(), guess)

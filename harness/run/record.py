@@ -29,6 +29,8 @@ CHECK_KEYS = frozenset({
     "max_charge_flux_contact", "max_charge_flux_open", "max_charge_flux_open_expected",
     # the size of the terms each reading sums (the checks' floors, harness/measure/checks.py)
     "force_reading", "traction_reading", "heat_reading", "heat_flux_reading", "charge_reading", "charge_flux_reading",
+    # the size of what the contact flux is formed from, int_Gamma_3 p_r(s) (|theta| + |theta_f|), the same of phi
+    "heat_contact_reading", "charge_contact_reading",
     # a floating electrode's potential, its charge read from the residual, the given one, and the
     # size of the terms that reading sums (freefem/floating.idp; only when the scene has one)
     "floating_potential", "floating_charge", "floating_charge_given", "floating_charge_reading",
@@ -53,6 +55,8 @@ class RunRecord:
     reason: str | None = None
     newton_iterations: int | None = None
     restarted_at: int | None = None  # Newton restarted from the pressed state after it (0: never)
+    failure_hint: str | None = None  # why Newton failed, when it can tell (freefem/newton.idp); empty otherwise
+    moved_onto_foundation_at: int | None = None  # the free first step from zero replaced by Gamma_3 on the foundation (0: never)
     residuals: dict[str, list[float]] | None = None
     increments: dict[str, list[float]] | None = None
     error_estimates: dict[str, list[float]] | None = None
@@ -117,7 +121,7 @@ class RunRecord:
     peak_rss_source: str | None = None
     started_from: str | None = None
     warnings: list[str] | None = None  # what the harness warns of this run (harness/run/tresca.py)
-    # -- a run on MPI ranks (run.ranks > 1; harness/run/launcher.py merge_records): the ranks,
+    # -- a run on MPI ranks (run.ranks > 1; freefem/ranks_record.idp): the ranks,
     # freefem/parallel_output.idp's figures, and the sequential pass's own peak and residuals
     ranks: int | None = None
     parallel: dict[str, Any] | None = None
@@ -159,8 +163,7 @@ RENAMED_KEYS = {"active_length": "active_measure"}
 KEYS = frozenset(f.name for f in dataclasses.fields(RunRecord))
 # What output.idp writes on every converged run (the rest depends on the scene).
 ALWAYS_WRITTEN = ("n", "converged", "reason", "newton_iterations", "dofs", "fields")
-HARNESS_KEYS = ("wall_s", "pipelined", "waited_s", "peak_rss_source", "started_from", "warnings",
-                "ranks", "parallel", "post_pass_peak_rss_mb", "post_pass_residuals")
+HARNESS_KEYS = ("wall_s", "pipelined", "waited_s", "peak_rss_source", "started_from", "warnings")
 
 
 def renamed(data: dict[str, Any]) -> dict[str, Any]:

@@ -126,7 +126,7 @@ class LevelRun:
             if plan.post is not None and outcome.returncode == 0:
                 script = work / "post.edp"
                 script.write_text(plan.post.script)
-                post = freefem.command(script, launcher.without_newton_steps(plan.post.bound(work)))
+                post = freefem.command(script, launcher.post_pass_options(plan.post.bound(work), work))
                 outcome = launcher.post_pass(work, post, outcome, scene.timeout_s)
             if CHILDREN.signum is not None:  # killed by the signal handler, not a failure of its own
                 raise Interrupted(CHILDREN.signum)
@@ -226,8 +226,10 @@ def collect(
     log = log_file(work, layout.failed_dir(scene.name, n))
     record = read_run_json(work)
     if outcome.returncode != 0:
-        # A distributed solve that failed wrote its reason into parallel.json, not run.json.
-        solved_by = record.reason if record else (launcher.read_json(work / "parallel.json") or {}).get("reason")
+        # (A distributed solve that failed wrote its run.json on the ranks.)
+        solved_by = record.reason if record else None
+        if record and record.failure_hint:
+            solved_by = f"{solved_by}: {record.failure_hint}"
         detail = solved_by or freefem.error_detail(read_logs(work))
         reason = freefem.failure_reason(outcome, scene.timeout_s, str(detail), started_pressed(scene, guess))
         raise RunError(f"{where}: {reason} (see {log})", freefem.failure_of(outcome))

@@ -33,10 +33,14 @@ def main_script(
     scheme: Path | None = None,
     plugin: Path | None = None,
     definitions: Sequence[str] = (),
+    ranks: bool = False,
 ) -> str:
     """`plugin`: the built plugin of a solver that builds one (harness/run/petsc_plugin.py);
-    `definitions`: FreeFEM lines written as they are after the macros (material regions)."""
+    `definitions`: FreeFEM lines written as they are after the macros (material regions);
+    `ranks`: the scheme's N-rank backend (freefem/ranks.idp, run.ranks > 1, FreeFem++-mpi)."""
     lines = ["// Written by the harness (harness/run/script.py); edit the scene, not this file."]
+    if ranks:
+        lines.append("macro PARALLELSCHEME 1 //")
     lines += linear_solver.macros(plugin)
     lines += [f"macro {effect_macro(e)} 1 //" for e in effects]
     lines.append(f"macro ELEMENT {element} //")

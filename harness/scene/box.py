@@ -15,6 +15,7 @@ from typing import Any
 
 import numpy as np
 
+from harness.scene.blocks import Block, parse_blocks
 from harness.scene.cell_size import Body
 from harness.scene.electrodes import Part
 from harness.core.errors import MeshError, SceneError
@@ -47,6 +48,10 @@ class Box:
     faces: dict[str, tuple[Patch, ...]]
     dimension: int = 3
     diagonals: str = "kuhn"  # the Kuhn/Freudenthal split of harness/mesh/box_mesh.py, or "unstructured" (gmsh)
+    # Named sub-blocks (harness/scene/blocks.py) and, when [scene.materials] maps them, the
+    # regions in label order (harness/scene/regions.py): the cells of regions[i] carry label i + 1.
+    blocks: tuple[Block, ...] = ()
+    regions: tuple[str, ...] = ()
 
     @property
     def lengths(self) -> tuple[float, float, float]:
@@ -72,6 +77,8 @@ class Box:
                         "are the patch edges on the mesh's grid lines?")
 
     def body_parts(self) -> tuple[Body, ...]:
+        if self.blocks:
+            return tuple(block.body() for block in self.blocks)
         return (Body("the box", (0.0, 0.0, 0.0), self.lengths),)
 
     def parts(self) -> tuple[Part, ...]:
@@ -89,8 +96,9 @@ class Box:
         return tuple(out)
 
     def cuts(self, axis: int) -> list[float]:
-        """The coordinates along `axis` where a patch starts or ends, with the box's own
-        ends: an unstructured mesh must have faces along them for its roles to be exact."""
+        """The coordinates along `axis` where a patch or a block starts or ends, with the box's
+        own ends: an unstructured mesh must have faces along them for its roles and regions to
+        be exact."""
         length = self.lengths[axis]
         found = {0.0, length}
         for name, patches in self.faces.items():
@@ -100,6 +108,8 @@ class Box:
                 first = in_plane.index(axis) == 0
                 for patch in patches:
                     found |= {patch.a0, patch.a1} if first else {patch.b0, patch.b1}
+        for block in self.blocks:  # the interfaces between regions, too
+            found |= {block.lo[axis], block.hi[axis]}
         return sorted(found)
 
     def contact_measure(self) -> float:
@@ -144,7 +154,8 @@ def face_extent(name: str, lengths: tuple[float, float, float]) -> tuple[float, 
 def parse_box(table: dict[str, Any]) -> Box:
     lengths = (table["lx"], table["ly"], table["lz"])
     faces = {name: parse_face(f"geometry.{name}", table[name], face_extent(name, lengths)) for name in FACES}
-    return Box(*lengths, faces=faces, diagonals=table.get("diagonals", "kuhn"))
+    return Box(*lengths, faces=faces, diagonals=table.get("diagonals", "kuhn"),
+               blocks=parse_blocks(table.get("blocks", {}), lengths))
 
 
 def parse_face(name: str, value: Any, extent: tuple[float, float]) -> tuple[Patch, ...]:

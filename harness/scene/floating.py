@@ -20,32 +20,47 @@ def roles_of(geometry: Any) -> set[str]:
     return set(geometry.role_lengths())
 
 
-def floating_roles(geometry: Any) -> tuple[str, ...]:
-    """The scene's floating electrodes, in the order run.json reports them."""
-    present = roles_of(geometry)
+def conductor_roles(materials: Any) -> set[str]:
+    """The roles the conductor regions of [scene.materials] are tied to (harness/scene/regions.py)."""
+    entries = materials.values() if isinstance(materials, dict) else ()
+    return {entry.get("conductor", "") for entry in entries if isinstance(entry, dict)}
+
+
+def floating_roles(geometry: Any, materials: Any = None) -> tuple[str, ...]:
+    """The scene's floating electrodes, on its boundary or tied to a conductor region of
+    `materials` ([scene.materials]), in the order run.json reports them."""
+    present = roles_of(geometry) | conductor_roles(materials)
     return tuple(role for role in FLOATING_ROLES if role in present)
 
 
 def check_floating(table: dict[str, dict[str, Any]], geometry: Any) -> None:
     """A floating electrode needs the potential and the sequential direct solve (its exact
     elimination is written for one rank's matrices); a charge needs its electrode."""
-    roles = floating_roles(geometry)
+    roles = floating_roles(geometry, table["scene"]["materials"])
     for role, key in FLOATING_CHARGES.items():
         charge = table["loads"].get(key, 0.0)  # absent: the potential is off
         if role not in roles and charge != 0:
-            raise SceneError(f"loads.{key} = {charge!r}: no boundary part has the role {role!r}")
+            raise SceneError(f"loads.{key} = {charge!r}: no boundary part nor conductor region has the role {role!r}")
     if not roles:
         return
+    check_own_potential(table, f"geometry: the role {roles[0]!r}", "its charge is a load of its own",
+                        "a floating electrode")
+
+
+def check_own_potential(table: dict[str, dict[str, Any]], where: str, why_not_manufactured: str, what: str) -> None:
+    """What a part whose potential the scheme itself sets (a floating electrode's elimination, a
+    conductor region's Dirichlet dofs) needs: the potential, no manufactured phi, and one rank's
+    direct solve (both are written for one rank's matrices)."""
     if "piezoelectric" not in table["scene"]["effects"]:
-        raise SceneError(f"geometry: the role {roles[0]!r} needs the effect 'piezoelectric' (the electric potential)")
+        raise SceneError(f"{where} needs the effect 'piezoelectric' (the electric potential)")
     if any(str(v).strip() for v in table.get("manufactured", {}).values()):
-        raise SceneError(f"geometry: the role {roles[0]!r} has no manufactured solution (its charge is a load of its own)")
+        raise SceneError(f"{where} has no manufactured solution ({why_not_manufactured})")
     run = table["run"]
     if not solver(run["linear_solver"]).floating or run["ranks"] > 1:
-        raise SceneError(f"run.linear_solver = {run['linear_solver']!r}, run.ranks = {run['ranks']}: a floating "
-                         f"electrode is solved on one rank with a direct solver ({accepting('floating')})")
+        raise SceneError(f"run.linear_solver = {run['linear_solver']!r}, run.ranks = {run['ranks']}: {what} "
+                         f"is solved on one rank with a direct solver ({accepting('floating')})")
 
 
-def floating_macros(geometry: Any) -> dict[str, str]:
-    """FLOATING switches on freefem/floating.idp when a part has a floating role."""
-    return {"FLOATING": "1"} if floating_roles(geometry) else {}
+def floating_macros(geometry: Any, materials: Any = None) -> dict[str, str]:
+    """FLOATING switches on freefem/floating.idp when a part or a conductor region has a floating role."""
+    return {"FLOATING": "1"} if floating_roles(geometry, materials) else {}

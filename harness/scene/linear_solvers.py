@@ -38,7 +38,7 @@ class LinearSolver:
     options_key: str = ""
     # The options when that key is blank, by dimension and Newton fields (measured defaults).
     default_options: Callable[[int, tuple[str, ...]], str] | None = None
-    # MPI ranks factorise each subdomain with the scene's solver (freefem/parallel.idp).
+    # MPI ranks factorise each subdomain with the scene's solver (freefem/ranks.idp, parallel_newton.idp).
     on_ranks: bool = True
     # A floating electrode's exact elimination is written for FreeFEM's own matrices.
     floating: bool = True

@@ -28,6 +28,7 @@ import sympy
 
 from harness.core.errors import SceneError
 from harness.core.layout import Layout
+from harness.scene.regions import any_rotated
 from harness.scene.material_constants import (CONSTANTS, CONSTANTS_3D, ROTATED, ROTATED_CONDUCTIVITY, ROTATED_ELASTIC,
                                         ROTATED_PERMITTIVITY, ROTATED_PIEZO, ROTATED_STRESS_TEMPERATURE,
                                         material_constants)
@@ -218,11 +219,38 @@ def scene_macros(scene, layout: Layout) -> dict[str, str]:
     texts = scene.manufactured
     if not texts:
         return {}
-    if scene.regions:
-        raise SceneError("a manufactured solution takes one material (scene.material), not [scene.materials]")
     exact = parse_exact(texts, scene.dimension)
+    if scene.regions:
+        return region_macros(exact, scene, layout)
     constants = material_constants(scene.material, layout, tuple(scene.poling_macros().items()), scene.dimension)
     return macros(derive(exact, constants, scene.effects, scene.dimension), scene.dimension)
+
+
+# The exact fields, one expression over the whole body (continuous across the interfaces); the
+# rest (fluxes, sources) is each region's own.
+CONTINUOUS = ("u1", "u2", "u3", "phi", "theta")
+
+
+def region_macros(exact: Exact, scene, layout: Layout) -> dict[str, str]:
+    """Macros of a manufactured solution across material regions: the exact fields are one
+    smooth expression, so u, phi and theta are continuous and each region's law makes its own
+    sigma*, D*, q*, which jump across an interface by the jump of the coefficients. Each flux and
+    source is written as sum_i (region == i) * (region i's expression), and MMSREGIONS has
+    freefem/mms.idp load the weak form (int sigma* : eps(v), ...) in place of the strong one:
+    that form holds across interfaces as it is, where the strong one would need the flux
+    jumps as line loads on them."""
+    rotated = any_rotated(scene.regions)
+    derived = [derive(exact, material_constants(r.material, layout, tuple(r.poling.macros(always=rotated).items()),
+                                                scene.dimension), scene.effects, scene.dimension)
+               for r in scene.regions]
+    out = {"MMS": "1", "MMSREGIONS": "1"}
+    for name, key in macro_names(scene.dimension).items():
+        if key in CONTINUOUS:
+            out[name] = freefem_expr(derived[0][key])
+        else:
+            out[name] = "(" + " + ".join(f"(region == {i + 1}) * {freefem_expr(d[key])}"
+                                         for i, d in enumerate(derived)) + ")"
+    return out
 
 
 def numeric(derived: Mapping[str, sympy.Expr]) -> dict[str, Callable[[np.ndarray, np.ndarray], np.ndarray]]:

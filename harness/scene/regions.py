@@ -1,35 +1,44 @@
 """Material regions: `[scene.materials]` maps each named physical group of a gmsh scene's body
-(surfaces in 2D, volumes in 3D) to a material; `scene.material` stays the one-region shorthand.
+(surfaces in 2D, volumes in 3D), or each named block of the rectangle or the box
+(harness/scene/blocks.py), to a material; `scene.material` stays the one-region shorthand.
 
 The regions are perfectly bonded: u, phi and theta are one continuous P1 field over the whole
 body, and only the constants of the law change from cell to cell. Each region's constants are
 asked of FreeFEM (harness/scene/material_constants.py: the file checked and, for a rotated poling,
 rotated by freefem/material.idp) and handed to the run as piecewise-constant (P0) fields,
-one per constant, keyed by the cells' region labels (harness/mesh/gmsh_mesh.py writes label i + 1
-on the cells of the i-th region). freefem/regions.idp defines them; the law reads them
-through material.idp's `mat(...)`.
+one per constant, keyed by the cells' region labels (harness/mesh/gmsh_mesh.py, mesh.py and
+box_mesh.py write label i + 1 on the cells of the i-th region). freefem/regions.idp defines
+them; the law reads them through material.idp's `mat(...)`.
 """
 
 from __future__ import annotations
 
 from dataclasses import dataclass
-from typing import Any
+from typing import Any, Callable
 
+from harness.core.contract import FLOATING_ROLES
 from harness.core.errors import SceneError
+from harness.scene.floating import check_own_potential
 from harness.scene.gmsh_geometry import GmshGeometry
 from harness.core.layout import Layout
 from harness.scene.material_constants import CONSTANTS, CONSTANTS_3D, ROTATED, material_constants
 from harness.scene.poling import Poling, parse_poling
 from harness.scene.schema import safe_name
 
-ENTRY_KEYS = ("material", "poling_axis")
+ENTRY_KEYS = ("material", "poling_axis", "conductor")
+# A conductor region is an equipotential at the potential of a role's parts: phi = 0 with the
+# ground (and the clamped parts), phi = loads.electrode_potential with the electrode; with a
+# floating role, the unknown uniform potential of that floating electrode (freefem/floating.idp),
+# whose given charge is then the conductor's and its boundary part's together.
+CONDUCTOR_ROLES = ("ground", "electrode", *FLOATING_ROLES)
 
 
 @dataclass(frozen=True)
 class Region:
-    name: str       # the physical group of the .geo file
+    name: str       # the physical group of the .geo file, or the block
     material: str
     poling: Poling  # its own poling_axis, or the scene's
+    conductor: str = ""  # a role of CONDUCTOR_ROLES: the region is an equipotential at its potential
 
 
 def regions_of(materials: dict[str, Any], names: tuple[str, ...], scene_poling: Any, dimension: int) -> tuple[Region, ...]:
@@ -39,7 +48,8 @@ def regions_of(materials: dict[str, Any], names: tuple[str, ...], scene_poling: 
         entry = materials[name]
         material = entry if isinstance(entry, str) else entry["material"]
         axis = entry.get("poling_axis", scene_poling) if isinstance(entry, dict) else scene_poling
-        out.append(Region(name, material, parse_poling(axis, dimension)))
+        conductor = entry.get("conductor", "") if isinstance(entry, dict) else ""
+        out.append(Region(name, material, parse_poling(axis, dimension), conductor))
     return tuple(out)
 
 
@@ -55,29 +65,13 @@ def check_regions(materials: Any, material: str, geometry: Any) -> tuple[str, ..
         raise SceneError(f"scene.material = {material!r} and [scene.materials] both given: the first is the "
                          "shorthand for one region; name every region's material in [scene.materials] instead")
     if not isinstance(geometry, GmshGeometry):
-        raise SceneError("[scene.materials] needs a gmsh scene (geometry.kind = \"gmsh\") whose body has named "
-                         "physical groups; the rectangle and the box have one region")
+        return check_block_regions(materials, geometry)
     kind = "surface" if geometry.dimension == 2 else "volume"
     bodies = dict(geometry.bodies)
-    for name, value in materials.items():
-        if isinstance(value, dict):
-            unknown = [k for k in value if k not in ENTRY_KEYS]
-            if unknown or "material" not in value:
-                raise SceneError(f"scene.materials.{name} = {value!r}: a region's table has a material and may have "
-                                 f"a poling_axis ({'unknown key ' + repr(unknown[0]) if unknown else 'no material'})")
-            try:
-                parse_poling(value.get("poling_axis", ""), geometry.dimension)
-            except SceneError as exc:
-                raise SceneError(f"scene.materials.{name}: {exc}") from None
-            value = value["material"]
-        if not isinstance(value, str) or safe_name(value):
-            raise SceneError(f"scene.materials.{name} = {value!r} must be a material name (letters, digits, - _ .)")
-        if name not in bodies:
-            raise SceneError(f"scene.materials.{name}: {geometry.file.name} has no physical {kind} named {name!r} "
-                             f"(its named {kind}s: {', '.join(bodies) or 'none'})")
-    for name in bodies:
-        if name not in materials:
-            raise SceneError(f"{geometry.file.name}: physical {kind} {name!r} has no material in [scene.materials]")
+    match_names(materials, tuple(bodies), geometry.dimension,
+                lambda name: f"scene.materials.{name}: {geometry.file.name} has no physical {kind} named {name!r} "
+                             f"(its named {kind}s: {', '.join(bodies) or 'none'})",
+                lambda name: f"{geometry.file.name}: physical {kind} {name!r} has no material in [scene.materials]")
     owner: dict[int, str] = {}
     for name, entities in geometry.bodies:
         for entity in entities:
@@ -89,6 +83,79 @@ def check_regions(materials: Any, material: str, geometry: Any) -> tuple[str, ..
         raise SceneError(f"{geometry.file.name}: {kind} {geometry.unnamed_bodies[0]} is in no physical {kind}, so "
                          "it has no material: add it to a named region")
     return tuple(materials)
+
+
+def check_block_regions(materials: dict[str, Any], geometry: Any) -> tuple[str, ...]:
+    """The rectangle's or box's regions, its [geometry.blocks] (harness/scene/blocks.py has
+    checked that they tile the body without overlapping)."""
+    blocks = [block.name for block in getattr(geometry, "blocks", ())]
+    if not blocks:
+        raise SceneError("[scene.materials] needs a gmsh scene (geometry.kind = \"gmsh\") whose body has named "
+                         "physical groups, or [geometry.blocks] naming the rectangle's or box's sub-blocks")
+    match_names(materials, tuple(blocks), geometry.dimension,
+                lambda name: f"scene.materials.{name}: geometry.blocks has no block named {name!r} "
+                             f"(its blocks: {', '.join(blocks)})",
+                lambda name: f"geometry.blocks.{name} has no material in [scene.materials]")
+    return tuple(materials)
+
+
+def match_names(materials: dict[str, Any], names: tuple[str, ...], dimension: int,
+                no_part: Callable[[str], str], no_material: Callable[[str], str]) -> None:
+    """Every entry valid and naming a part of the body, every part named: else the first
+    culprit, in the words `no_part(name)` or `no_material(name)` give."""
+    for name in materials:
+        check_entry(name, materials[name], dimension)
+        if name not in names:
+            raise SceneError(no_part(name))
+    for name in names:
+        if name not in materials:
+            raise SceneError(no_material(name))
+
+
+def check_entry(name: str, value: Any, dimension: int) -> None:
+    """One entry of [scene.materials]: a material name, or a table with a material and a poling_axis."""
+    if isinstance(value, dict):
+        unknown = [k for k in value if k not in ENTRY_KEYS]
+        if unknown or "material" not in value:
+            raise SceneError(f"scene.materials.{name} = {value!r}: a region's table has a material and may have "
+                             f"a poling_axis and a conductor "
+                             f"({'unknown key ' + repr(unknown[0]) if unknown else 'no material'})")
+        if value.get("conductor", "") not in CONDUCTOR_ROLES + ("",):
+            raise SceneError(f"scene.materials.{name}.conductor = {value['conductor']!r}: a conductor region is tied "
+                             f"to the potential of one of the roles {', '.join(CONDUCTOR_ROLES)}")
+        try:
+            parse_poling(value.get("poling_axis", ""), dimension)
+        except SceneError as exc:
+            raise SceneError(f"scene.materials.{name}: {exc}") from None
+        value = value["material"]
+    if not isinstance(value, str) or safe_name(value):
+        raise SceneError(f"scene.materials.{name} = {value!r} must be a material name (letters, digits, - _ .)")
+
+
+def check_conductors(table: dict[str, dict[str, Any]], regions: tuple[Region, ...]) -> None:
+    """A conductor region needs the potential, fixes it by Dirichlet values on one rank's
+    direct solve, and has no manufactured data of its own."""
+    tied = [r for r in regions if r.conductor]
+    if not tied:
+        return
+    check_own_potential(table, f"scene.materials.{tied[0].name}.conductor = {tied[0].conductor!r}",
+                        "its phi is given everywhere", "a conductor region")
+
+
+def conductor_definitions(regions: tuple[Region, ...]) -> list[str]:
+    """The switch CONDUCTORS and the P0 fields of the cells tied to each role's potential
+    (freefem/regions.idp makes them Dirichlet nodes of phi); none without conductor regions."""
+    if not any(r.conductor for r in regions):
+        return []
+    fields = []
+    for role in ("ground", "electrode"):
+        terms = " + ".join(f"(region == {i + 1})" for i, r in enumerate(regions) if r.conductor == role) or "0."
+        fields.append(f"RegionSpace rgTied{role.capitalize()} = {terms};")
+    # A floating conductor's cells carry 1 + the index of its electrode (its slot in floating.idp).
+    terms = " + ".join(f"(region == {i + 1}) * {FLOATING_ROLES.index(r.conductor) + 1}."
+                       for i, r in enumerate(regions) if r.conductor in FLOATING_ROLES) or "0."
+    fields.append(f"RegionSpace rgTiedFloating = {terms};")
+    return ["macro CONDUCTORS 1 //", f"macro conductorFields {' '.join(fields)} //"]
 
 
 def any_rotated(regions: tuple[Region, ...]) -> bool:
@@ -108,4 +175,4 @@ def region_definitions(regions: tuple[Region, ...], layout: Layout, dimension: i
         # One term per region; a cell's own term is its value, the others 0 * value = 0.
         terms = " + ".join(f"(region == {i + 1}) * {value[name]!r}" for i, value in enumerate(values))
         fields.append(f"RegionSpace rg{name} = {terms};")
-    return ["macro REGIONS 1 //", f"macro regionConstants {' '.join(fields)} //"]
+    return ["macro REGIONS 1 //", f"macro regionConstants {' '.join(fields)} //", *conductor_definitions(regions)]

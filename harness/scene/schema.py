@@ -117,7 +117,14 @@ DATA_EFFECT: dict[tuple[str, str | None], str] = {
 }
 
 
-# Case-file data that only one friction law reads (freefem/contact.idp): key -> (the key
+# The friction laws (freefem/friction.idp, docs/laws.md), each with the key whose positive
+# value makes it grip (a pressed contact then holds the body tangentially: well_posed.py).
+FRICTION_LAWS: dict[str, str] = {
+    "tresca": "S",
+    "coulomb": "mu",
+}
+
+# Case-file data that only one friction law reads (freefem/friction.idp): key -> (the key
 # naming the law, the law that reads it). Under another law the key may be left out.
 LAW_DATA: dict[tuple[str, str], tuple[str, str]] = {
     ("contact", "S"): ("friction_law", "tresca"),
@@ -159,8 +166,9 @@ SCHEMA: dict[str, dict[str, Key]] = {
         "description": Key(str, ""),
         # One material for the whole body, or blank with [scene.materials] (harness/scene/regions.py).
         "material": Key(str, "", check=lambda v: material_reference(v) if v else None),
-        # [scene.materials]: a gmsh scene's named body groups (surfaces in 2D, volumes in 3D)
-        # = material, one entry per group; the scene.material shorthand left blank.
+        # [scene.materials]: a gmsh scene's named body groups (surfaces in 2D, volumes in 3D),
+        # or the rectangle's or box's [geometry.blocks], = material, one entry per group; the
+        # scene.material shorthand left blank.
         "materials": Key(object, {}),
         "effects": Key(list, list(EFFECTS), effect_list),
         # zero | pressed: Newton's start on every level; coarser: each level starts from
@@ -185,6 +193,9 @@ SCHEMA: dict[str, dict[str, Key]] = {
         # "unstructured": gmsh's Frontal-Delaunay triangles of size h with the interior
         # nodes shifted at random by up to 0.3 h (a distorted, non-nested mesh; harness/mesh/rectangle_mesh.py).
         "diagonals": Key(str, "SW-NE", one_of("SW-NE", "NW-SE", "unstructured")),
+        # [geometry.blocks]: named sub-blocks name = [x0, x1, y0, y1] that tile the body, the
+        # regions [scene.materials] maps to materials (harness/scene/blocks.py).
+        "blocks": Key(object, {}),
     },
     "loads": {
         name: Key(float, 0.0)
@@ -206,9 +217,9 @@ SCHEMA: dict[str, dict[str, Key]] = {
         # pressure, so it grips the body even where the contact is open (docs/model.md).
         # Required by Tresca only (LAW_DATA).
         "S": Key(float, check=nonnegative),
-        # The slip bound (freefem/contact.idp, docs/laws.md): tresca, R = S; coulomb,
+        # The slip bound (freefem/friction.idp, docs/laws.md): tresca, R = S; coulomb,
         # R = mu c_nu (u_nu - g)_+, mu times the normal pressure (S is then not used).
-        "friction_law": Key(str, "tresca", one_of("tresca", "coulomb")),
+        "friction_law": Key(str, "tresca", one_of(*FRICTION_LAWS)),
         "mu": Key(float, 0.0, nonnegative),
     },
     "electric_contact": {
@@ -244,7 +255,7 @@ SCHEMA: dict[str, dict[str, Key]] = {
         # from n = 16 to 128 (docs/solvers.md). The harness meshes them (harness/mesh/mesh.py).
         "multigrid_levels": Key(int, 4, nonnegative),
         "multigrid_coarsest": Key(int, 8, positive),
-        # MPI ranks of one solve (freefem/parallel.idp, harness/run/launcher.py); 1: the sequential scheme.
+        # MPI ranks of one solve (freefem/ranks.idp, harness/run/launcher.py); 1: the sequential scheme.
         "ranks": Key(int, 1, positive),
         # How ranks are started; {ranks} is replaced. On a SLURM cluster: "srun -n {ranks} FreeFem++-mpi".
         "launcher": Key(str, "ff-mpirun -np {ranks}"),
@@ -299,6 +310,8 @@ BOX_GEOMETRY: dict[str, Key] = {
     **{name: Key(object) for name in ("x0", "x1", "y0", "y1", "z0", "z1")},
     # kuhn: nested structured tetrahedra (harness/mesh/box_mesh.py); unstructured: gmsh's, not nested.
     "diagonals": Key(str, "kuhn", one_of("kuhn", "unstructured")),
+    # [geometry.blocks]: named sub-blocks name = [x0, x1, y0, y1, z0, z1] (harness/scene/blocks.py).
+    "blocks": Key(object, {}),
 }
 
 

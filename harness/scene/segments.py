@@ -7,6 +7,7 @@ from typing import Any
 
 import numpy as np
 
+from harness.scene.blocks import Block, parse_blocks
 from harness.scene.cell_size import Body
 from harness.scene.electrodes import Part
 from harness.core.errors import SceneError
@@ -33,6 +34,10 @@ class Geometry:
     left: str
     right: str
     diagonals: str
+    # Named sub-blocks (harness/scene/blocks.py) and, when [scene.materials] maps them, the
+    # regions in label order (harness/scene/regions.py): the cells of regions[i] carry label i + 1.
+    blocks: tuple[Block, ...] = ()
+    regions: tuple[str, ...] = ()
 
     def breakpoints(self) -> tuple[float, ...]:
         """Every x where a bottom or top segment starts or ends, sorted, 0 and width included."""
@@ -64,6 +69,8 @@ class Geometry:
         return np.array(normals, dtype=float).reshape(-1, 2)
 
     def body_parts(self) -> tuple[Body, ...]:
+        if self.blocks:
+            return tuple(block.body() for block in self.blocks)
         return (Body("the rectangle", (0.0, 0.0), (self.width, self.height)),)
 
     def parts(self) -> tuple[Part, ...]:
@@ -86,6 +93,10 @@ class Geometry:
 
 def parse_geometry(table: dict[str, Any]) -> Geometry:
     width = table["width"]
+    blocks = parse_blocks(table.get("blocks", {}), (width, table["height"]))
+    if blocks and table["diagonals"] == "unstructured":
+        raise SceneError("geometry.blocks need the structured lattice (diagonals = \"SW-NE\" or \"NW-SE\"): "
+                         "unstructured triangles would straddle the blocks' interfaces")
     return Geometry(
         width=width,
         height=table["height"],
@@ -94,6 +105,7 @@ def parse_geometry(table: dict[str, Any]) -> Geometry:
         left=table["left"],
         right=table["right"],
         diagonals=table["diagonals"],
+        blocks=blocks,
     )
 
 

@@ -112,6 +112,16 @@ class Unknowns:
             return " ".join(f"matrix K{r}{c} = vK{r}{c}({space[c]}, {space[r]}); "
                             f'tProfile = profileAdd("bulk block K{r}{c}", tProfile);' for r, c in sorted(which))
         kept_blocks, bulk_blocks = assemble(kept), assemble(blocks - kept)
+
+        def into_petsc(which: set[tuple[str, str]]) -> str:
+            # With PETSc each block goes into the plugin's K and is freed before the next is
+            # assembled (freefem/bulk.idp): K_uu, the largest, first, while nothing else is held.
+            order = sorted(which, key=lambda rc: (rc != ("u", "u"), rc))
+            return " ".join(f"{{ matrix K{r}{c} = vK{r}{c}({space[c]}, {space[r]}); "
+                            f'tProfile = profileAdd("bulk block K{r}{c}", tProfile); '
+                            f"if (petscBulkAdd(id, K{r}{c}, bulkOffset{r}, bulkOffset{c}) < 0) exit(exitInternal); "
+                            f'tProfile = profileAdd("bulk K into PETSc", tProfile); }}' for r, c in order)
+        petsc_blocks = into_petsc(blocks - kept)
         # A staggered theta is a load on the Newton fields through their blocks K_rt.
         staggered = " ".join(f"real[int] k{r}t = K{r}t * th[]; b{r} -= k{r}t;"
                              for r, c in sorted(blocks) if c == "t" and r in newton)
@@ -146,6 +156,7 @@ class Unknowns:
             f"macro keptBlocks() {kept_blocks} //",
             f"macro bulkBlocks() {bulk_blocks} //",
             f"macro bulkMatrix() {bulk_matrix} //",
+            f"macro bulkIntoPetsc(id) {petsc_blocks} //",
             f"macro staggeredThetaLoads() {staggered} //" if self.staggered else "",
             f"macro contactBlocks() {' '.join(tangent)} //",
             f"macro contactMatrix() {matrix('T{r}{c}', blocks)} //",

@@ -13,6 +13,7 @@ from typing import Any, Collection, Protocol
 import numpy as np
 
 from harness.core.errors import SceneError
+from harness.scene.schema import FRICTION_LAWS
 
 # The roles with a Dirichlet condition on each field: freefem/dimension.idp onU (u),
 # freefem/forms.idp vDirP (φ) and vDirT (θ).
@@ -32,10 +33,11 @@ class Geometry(Protocol):
 
 def friction_holds(effects: Collection[str], contact: dict[str, Any]) -> bool:
     """Whether a pressed contact part holds the body tangentially: the friction effect with
-    a slip bound that is not identically zero (Tresca S > 0, or Coulomb mu > 0)."""
+    a slip bound that is not identically zero (Tresca S > 0, or Coulomb mu > 0: the law's
+    key of schema.FRICTION_LAWS)."""
     if "friction" not in effects:
         return False  # (and the friction keys are not in the resolved table)
-    return (contact["mu"] if contact["friction_law"] == "coulomb" else contact["S"]) > 0
+    return contact[FRICTION_LAWS[contact["friction_law"]]] > 0
 
 
 def u_fixed(geometry: Geometry, effects: Collection[str], contact: dict[str, Any]) -> bool:

@@ -119,6 +119,10 @@ def plans_of(case: Path, overrides: list[str], branches: list[str] | None,
     base = load_scene(case, overrides)
     if base.element != "P1" or base.manufactured:
         raise SceneError(f"{case}: the GetFEM peer solves P1 scenes without manufactured sources")
+    tied = [r for r in base.regions if r.conductor]
+    if tied:  # unsupported, not a disagreement: the peer would solve the region as a dielectric
+        raise SceneError(f"{case}: the GetFEM peer has no conductor regions (scene.materials.{tied[0].name}.conductor "
+                         f"= {tied[0].conductor!r})")
     own = base.sections.scene.coarsest_guess if base.initial_guess == "coarser" else base.initial_guess
     out = []
     for start in branches or [own]:

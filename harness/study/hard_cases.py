@@ -157,6 +157,60 @@ def passed(row: dict[str, Any]) -> bool:
     return row["status"] == "converged" and bool(row.get("checks_ok")) and not row["note"]
 
 
+# ---- cold starts: every level from the case's own start ---------------------------------
+
+def own_start(scene: Scene) -> str:
+    """The start a case's coarsest level takes (zero, or pressed for the *_pressed cases)."""
+    return scene.sections.scene.coarsest_guess
+
+
+def cold_start_scene(case: Path) -> Scene:
+    scene = load_scene(case)
+    return load_scene(case, [f"scene.name={case.stem}_cold", f'scene.initial_guess="{own_start(scene)}"'])
+
+
+# A field's unit in run.json's scales (freefem/scaling.idp): 1e-14 of it is round-off, the
+# floor of the relative difference (lift_off's theta is 1e-118 K, zero up to round-off).
+SCALE_OF = {"u": "U", "phi": "Phi", "theta": "Theta"}
+
+
+def field_difference(a: Path, b: Path, scales: dict[str, float]) -> float:
+    """The largest difference of two solutions' u, phi, theta, node by node, each relative to
+    that field's largest value in `a` (at least 1e-14 of its scale): how far a cold start
+    ended from the chain's solution."""
+    fa, fb = read_fields(a / "solution.vtu"), read_fields(b / "solution.vtu")
+    worst = 0.0
+    for name in FIELD_NAMES:
+        if name in fa.values:
+            va, vb = fa.field(name), fb.field(name)
+            size = max(float(abs(va).max()), 1e-14 * scales.get(SCALE_OF[name], 0.0), 1e-300)
+            worst = max(worst, float(abs(va - vb).max()) / size)
+    return worst
+
+
+def cold_starts(result: CaseResult, layout: Layout, force: bool = False) -> list[dict[str, Any]]:
+    """Each level of the case's chain again on its own, from the case's own start, no
+    coarser solution: Newton's iterations, whether it restarted from the pressed state or
+    moved Gamma_3 onto the foundation (freefem/newton.idp), and how far its solution is from
+    the chain's at that level (the same solution, or another branch)."""
+    case = result.scene.source
+    scene = cold_start_scene(case)
+    levels = {level.n: level for level in result.levels}
+    outcomes = run_levels(scene, InlineMeshes(scene, sorted(levels), layout), layout, force=force, progress=quiet,
+                          chain=False)
+    rows = []
+    for cold in map(level_of, outcomes.values()):
+        record = cold.record or RunRecord()
+        chain = levels[cold.n]
+        same = (field_difference(chain.directory, cold.directory, record.scales or {})
+                if cold.status == chain.status == "converged" else math.nan)
+        rows.append({"case": result.case, "start": own_start(scene), "n": cold.n, "status": cold.status,
+                     "newton_iterations": record.newton_iterations, "restarted_at": record.restarted_at,
+                     "moved_onto_foundation_at": record.moved_onto_foundation_at,
+                     "difference_from_chain": same, "wall_s": cold.wall_s})
+    return rows
+
+
 # ---- the paper's scene: iterations per level ---------------------------------------------
 
 # The paper scene's starts of the iteration table: the chain of `make convergence`, and zero.
