@@ -340,9 +340,9 @@ def test_a_halved_coulomb_bound_in_the_residual_fails_the_manufactured_rates(tmp
     assert not rates["within_band"].all(), rates.to_string()
 
 
-# Across a material interface (tests/data/mms_interface.toml): the rectangle's two named blocks,
+# Across a material interface (cases/mms/interface.toml): the rectangle's two named blocks,
 # BaTiO3 below and PZT-5H poled along (0.6, 0.8) above, the exact fields of cases/mms/bulk.toml.
-INTERFACE = REPO / "tests" / "data" / "mms_interface.toml"
+INTERFACE = REPO / "cases" / "mms" / "interface.toml"
 
 
 def interface_errors(layout: Layout, levels: tuple[int, ...]) -> pd.DataFrame:

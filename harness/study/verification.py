@@ -20,7 +20,8 @@ from harness.scene.scene import Scene
 
 MMS_CASES = {"bulk": REPO / "cases" / "mms" / "bulk.toml", "contact": REPO / "cases" / "mms" / "contact.toml",
              "coulomb": REPO / "cases" / "mms" / "contact_coulomb.toml",
-             "wedge": REPO / "cases" / "mms" / "contact_wedge.toml"}
+             "wedge": REPO / "cases" / "mms" / "contact_wedge.toml",
+             "interface": REPO / "cases" / "mms" / "interface.toml"}
 MMS_LEVELS = (4, 8, 16, 32)
 # The 3D cases (issue 12) on their own levels: h = 1/32 of the 2x1x1 box is ~350,000 dofs.
 MMS_CASES_3D = {"bulk3d": REPO / "cases" / "mms" / "bulk3d.toml", "contact3d": REPO / "cases" / "mms" / "contact3d.toml",
