@@ -7,3 +7,6 @@ layer and the layers before it (tests/test_layers.py):
 
 Each layer's `__init__` says what it holds.
 """
+
+# The layer folders, bottom to top: a module may import from its own and the earlier ones.
+LAYERS = ("core", "scene", "mesh", "run", "measure", "study", "report", "studies")

@@ -10,11 +10,11 @@ import re
 import sys
 from pathlib import Path
 
+from harness import LAYERS
+
 ROOT = Path(__file__).resolve().parents[1]
 HARNESS = ROOT / "harness"
 PAGE = ROOT / "docs" / "modules.md"
-# Bottom to top: the order the data flows, and the order a module may import in.
-LAYERS = ("core", "scene", "mesh", "run", "measure", "study", "report", "studies")
 ENTRY_POINTS = ("__main__.py", "cli.py", "arguments.py")
 
 HEAD = """# The harness, one line per module

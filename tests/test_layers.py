@@ -12,9 +12,9 @@ from pathlib import Path
 
 import pytest
 
+from harness import LAYERS
+
 HARNESS = Path(__file__).parents[1] / "harness"
-# Bottom to top, in the order the data flows; the command line on top of the studies.
-LAYERS = ("core", "scene", "mesh", "run", "measure", "study", "report", "studies")
 # Modules beside the folders: the arguments the studies share sit with the studies.
 BESIDE = {"harness.arguments": "studies", "harness.cli": None, "harness.__main__": None, "harness": None}
 

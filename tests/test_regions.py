@@ -63,12 +63,15 @@ def split_paper(tmp_path: Path, materials: str) -> Path:
     return case
 
 
+def one_and_three_regions(tmp_path, materials: str, n: int):
+    """The states of the gmsh paper scene as one body and split into three regions."""
+    solve(CASES / "paper_gmsh.toml", n, tmp_path / "one")
+    solve(split_paper(tmp_path, materials), n, tmp_path / "three")
+    return tuple(read_state(tmp_path / run / "paper_gmsh" / f"n{n}" / "state.txt") for run in ("one", "three"))
+
+
 def test_regions_of_one_material_are_the_one_region_body(tmp_path):
-    case = split_paper(tmp_path, 'left = "BaTiO3"\nmiddle = "BaTiO3"\nright = "BaTiO3"')
-    solve(CASES / "paper_gmsh.toml", 4, tmp_path / "one")
-    solve(case, 4, tmp_path / "three")
-    one = read_state(tmp_path / "one" / "paper_gmsh" / "n4" / "state.txt")
-    three = read_state(tmp_path / "three" / "paper_gmsh" / "n4" / "state.txt")
+    one, three = one_and_three_regions(tmp_path, 'left = "BaTiO3"\nmiddle = "BaTiO3"\nright = "BaTiO3"', 4)
     # Each cell's constants are the same doubles (P0 fields of the region labels against the
     # material's reals): the same arithmetic, measured identical to the last bit.
     for a, b in zip(one, three):
@@ -76,11 +79,7 @@ def test_regions_of_one_material_are_the_one_region_body(tmp_path):
 
 
 def test_a_region_of_another_material_changes_the_solution(tmp_path):
-    case = split_paper(tmp_path, 'left = "BaTiO3"\nmiddle = "PZT-5H"\nright = "BaTiO3"')
-    solve(CASES / "paper_gmsh.toml", 2, tmp_path / "one")
-    solve(case, 2, tmp_path / "three")
-    one = read_state(tmp_path / "one" / "paper_gmsh" / "n2" / "state.txt")
-    three = read_state(tmp_path / "three" / "paper_gmsh" / "n2" / "state.txt")
+    one, three = one_and_three_regions(tmp_path, 'left = "BaTiO3"\nmiddle = "PZT-5H"\nright = "BaTiO3"', 2)
     assert np.abs(one[0] - three[0]).max() > 0.1 * np.abs(one[0]).max()
 
 
