@@ -6,6 +6,7 @@ the optimal rate, the 3D loop runs on the paper's block, and bad input is refuse
 from __future__ import annotations
 
 import json
+from dataclasses import replace
 
 import meshio
 import numpy as np
@@ -265,3 +266,124 @@ def test_the_steps_of_a_multi_region_scene_keep_each_cells_material(tmp_path):
     write_step(bisection.uniform(bisection.refine(mesh, np.arange(len(mesh.cells)) % 3 == 0)), tmp_path / "step.msh")
     assert len(region_areas(start)) == 3
     assert region_areas(tmp_path / "step.msh") == pytest.approx(region_areas(start), rel=1e-12)  # sums of round-off
+
+
+def test_a_step_that_would_not_fit_in_memory_ends_in_exit_4_with_the_steps_done_reported(capsys, tmp_path, monkeypatch):
+    """The memory guard of each step, from its node count before its mesh is written: the first
+    two steps fit, the third (and the reference) would not. The study reports the two steps, writes
+    no third mesh and ends with one line and exit 4."""
+    import harness.study.adapt as loop
+
+    answers = iter([float("inf")] * 2)
+    monkeypatch.setattr(loop, "available_memory", lambda: next(answers, 1e6))
+    results = tmp_path / "results"
+    code = main(["adapt", str(PAPER), "--steps", "5", "--set", "study.levels=[2, 4]", "--results", str(results)])
+    captured = capsys.readouterr()
+    err = captured.err.strip().splitlines()
+    assert code == 4
+    assert err[-1].startswith("error: step 3 would need") and "1e-03 GB is available" in err[-1].replace("0.001", "1e-03"), err[-1]
+    assert "--ignore-memory-guard" in err[-1] and "Traceback" not in captured.err
+    out = results / "adapt" / "paper"
+    table = pd.read_csv(out / "adapt.csv")
+    assert table["step"].tolist() == [1, 2] and table["err_u"].isna().all()  # no reference: nothing to measure against
+    assert not (out / "meshes" / "adapt_3.msh").exists()
+    assert json.loads((out / "summary.json").read_text())["errors_against"] == "nothing: no reference"
+    assert "checks n=2: pass" in captured.out  # the steps done are checked as well
+
+
+def test_the_memory_guard_can_be_overridden(tmp_path, monkeypatch):
+    import harness.study.adapt as loop
+
+    monkeypatch.setattr(loop, "available_memory", lambda: 1e6)
+    # (a band no slope of three steps misses: this test is of the guard, not of the rates)
+    code = main(["adapt", str(PAPER), "--steps", "3", "--set", "study.levels=[2, 4]", "--ignore-memory-guard",
+                 "--set", "study.adaptive_band=[-10.0, 10.0]", "--results", str(tmp_path / "results")])
+    assert code == 0
+    assert len(pd.read_csv(tmp_path / "results" / "adapt" / "paper" / "adapt.csv")) == 3
+
+
+def test_every_adapted_step_and_the_reference_pass_the_physical_checks(capsys, tmp_path, monkeypatch):
+    """The checks of a uniform level (force, contact stresses, open flux, heat and charge balance)
+    run on every step and on the reference; one failed check fails the verdict (exit 1)."""
+    results = tmp_path / "results"
+    argv = ["adapt", str(PAPER), "--steps", "4", "--set", "study.levels=[2, 4]", "--results", str(results),
+            "--set", "study.adaptive_band=[-10.0, 10.0]"]  # four steps are too few for the paper's band
+    code = main(argv)
+    out = capsys.readouterr().out
+    assert code == 0, capsys.readouterr().err
+    for n in (1, 2, 3, 4, 5):  # the four steps and the reference (labelled 5)
+        assert f"checks n={n}: pass (force, sigma_nu, sigma_tau, open_flux, heat, charge)" in out, out
+    import harness.measure.run_checks as run_checks
+
+    real = run_checks.judge
+
+    def failing(record, scene):  # noqa: ANN001, ANN202
+        judged = real(record, scene)
+        return replace(judged, failed=("heat_ok",)) if record.dofs and record.dofs > 1000 else judged
+
+    monkeypatch.setattr(run_checks, "judge", failing)
+    code = main(argv)
+    err = capsys.readouterr().err.strip().splitlines()
+    assert code == 1 and "physical checks failed" in err[-1], err[-1]
+
+
+def test_the_multigrid_of_a_step_coarsens_through_the_earlier_steps(tmp_path):
+    """Each level at most a quarter of the nodes of the one above, finest first, at most the
+    scene's count; and the run plan hands them to FreeFEM as its multigrid levels in place of the
+    uniform family, which is not nested in an adapted mesh."""
+    from harness.mesh.msh import mark_coarser
+    from harness.run.plan import make_plan
+    from harness.study.adapt import Step, multigrid_chain
+
+    paths = [tmp_path / f"adapt_{k}.msh" for k in range(1, 8)]
+    counts = [100, 150, 300, 500, 1300, 2000, 5000]
+    steps = [Step(k + 1, p, None, 0, 0, {}, 0.0) for k, p in enumerate(paths)]  # type: ignore[arg-type]
+    nodes = dict(zip(paths, counts))
+
+    class Mesh:
+        points = np.zeros((21000, 3))
+
+    assert multigrid_chain(Mesh(), steps, nodes, 4) == [paths[6], paths[3], paths[0]]  # 5000, 500, 100 nodes
+    assert multigrid_chain(Mesh(), steps, nodes, 1) == [paths[6]]
+    scene = load_scene(REPO / "cases" / "disc_pad.toml")
+    assert scene.multigrid_levels == 4
+    mesh = tmp_path / "step.msh"
+    mesh.write_text("")
+    for p in paths[:3]:
+        p.write_text(p.name)
+    mark_coarser(mesh, paths[:3][::-1])
+    options = make_plan(scene, mesh, 8, Layout(results=tmp_path / "results"), None).main.options
+    given = [options[i + 1] for i, o in enumerate(options) if o == "-mg.mesh"]
+    assert given == [str(p.resolve()) for p in paths[:3][::-1]]
+
+
+def test_a_3d_step_far_below_the_2d_reader_floor_is_read_and_solved(tmp_path):
+    """FreeFEM's gmshload3 has no smallest-cell bound like gmshload's 1e-8 (freefem/dimension.idp):
+    the box of cases/mms/contact3d.toml bisected 60 times toward a corner (tetrahedra below 1e-18 m^3,
+    below any area the 2D reader takes, cubed) is written without the small-cells marker, read,
+    solved, and its error against the exact fields is that of a mesh of its size."""
+    from harness.mesh import tet_bisection
+    from harness.mesh.mesh import build_mesh
+    from harness.mesh.msh import small_cells_marker
+    from harness.mesh.simplex import signed_measures
+    from harness.study.adapt import read_start, solve_on, write_step
+    from harness.study.engine import quiet as no_progress
+
+    scene = load_scene(REPO / "cases" / "mms" / "contact3d.toml", ['scene.initial_guess="coarser"'])
+    layout = Layout(results=tmp_path / "results")
+    mesh = read_start(build_mesh(scene.geometry, 2, layout.meshes_dir(scene.name), warn=False).path, 3)
+    for _ in range(60):
+        distance = np.linalg.norm(mesh.points[mesh.cells].mean(axis=1), axis=1)
+        mesh = tet_bisection.refine(mesh, distance <= np.sort(distance)[3])
+    volumes = np.abs(signed_measures(mesh.points, mesh.cells))
+    assert volumes.min() < 1e-18
+    path = layout.meshes_dir(scene.name) / "corner.msh"
+    write_step(mesh, path)
+    assert not small_cells_marker(path).exists()
+    run = solve_on(scene, path, 1, layout, None, False, no_progress)
+    assert run.record.converged
+    errors = run.record.mms_measure_errors
+    coarse = solve_on(scene, build_mesh(scene.geometry, 2, layout.meshes_dir(scene.name), warn=False).path, 2,
+                      layout, None, False, no_progress).record.mms_measure_errors
+    for field in ("u", "phi", "theta"):  # the corner's refinement leaves the rest as coarse as level 2
+        assert 0 < errors[field] <= 1.01 * coarse[field], (field, errors, coarse)

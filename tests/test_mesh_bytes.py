@@ -29,7 +29,7 @@ CASES = sorted(str(p.relative_to(REPO / "cases")) for folder in ("", "hard", "mm
                for p in (REPO / "cases" / folder).glob("*.toml"))
 LEVELS = (2, 4)
 # The adaptive loop's meshes (study/adapt.py): one Dörfler-like step marking every third
-# cell, then the reference's uniform rounds, from level 2 of a 2D, a box and a gmsh 3D scene.
+# cell, then the reference's uniform refinement (3D: one shortest-diagonal split), from level 2 of a 2D, a box and a gmsh 3D scene.
 ADAPTED = ("paper.toml", "paper3d.toml", "mms/tilted3d.toml")
 GRADING = 1.5  # the cost study's P1-graded power (harness/report/frontier.py)
 
@@ -56,7 +56,7 @@ def adapted_meshes(case: str, directory: Path) -> dict[str, str]:
     marked = np.arange(len(mesh.cells)) % 3 == 0
     out = {}
     for name, step in (("marked", refiner.refine(mesh, marked)),
-                       ("reference", refiner.uniform(mesh, adapt.REFERENCE_ROUNDS[scene.dimension]))):
+                       ("reference", adapt.reference_of(mesh))):
         path = directory / "adapt" / case / f"{name}.msh"
         adapt.write_step(step, path)
         out[f"{case}:adapt_{name}"] = sha256(path)

@@ -129,27 +129,29 @@ def memory_estimate(width: float, height: float, n: int, effects: tuple[str, ...
     method with an iterative preconditioner); `multigrid`: whether that preconditioner is a
     geometric multigrid; `nodes_at`: the scene's own node count of a level (a gmsh scene),
     instead of the structured box width x height (x depth)."""
-    nodes = level_nodes(width, height, n, element, depth, nodes_at)
-    if not factorises:
-        dimension = 2 if depth is None else 3
-        dofs = unknowns_per_node(effects, dimension) * nodes
-        if multigrid:
-            return dofs, multigrid_bytes(width, height, n, effects, element, depth, nodes_at, dofs)
-        return dofs, BYTES_PER_DOF_ITERATIVE[dimension] * dofs
-    if depth is None:
-        dofs = unknowns_per_node(effects) * nodes
-        return dofs, BASE_BYTES + BYTES_PER_DOF * dofs
-    dofs = unknowns_per_node(effects, 3) * nodes
-    return dofs, BYTES_PER_DOF_3D * dofs * max(1.0, dofs / DOFS_3D_MEASURED) ** (1 / 3)
-
-
-def multigrid_bytes(width: float, height: float, n: int, effects: tuple[str, ...], element: str,
-                    depth: float | None, nodes_at: NodesAt | None, dofs: int) -> float:
-    """The peak of a geometric multigrid's run of `dofs` unknowns at level n (see
-    MULTIGRID_START_MIB): start-up, the matrices per unknown, the coarsest level's LU."""
     dimension = 2 if depth is None else 3
-    coarse = level_nodes(width, height, min(n, MULTIGRID_COARSEST), element, depth, nodes_at)
-    coarse_dofs = unknowns_per_node(effects, dimension) * coarse
+    per_node = unknowns_per_node(effects, dimension)
+    dofs = per_node * level_nodes(width, height, n, element, depth, nodes_at)
+    coarse_dofs = (per_node * level_nodes(width, height, min(n, MULTIGRID_COARSEST), element, depth, nodes_at)
+                   if multigrid and not factorises else 0)
+    return dofs, run_bytes(dofs, dimension, factorises, multigrid, coarse_dofs)
+
+
+def run_bytes(dofs: int, dimension: int, factorises: bool, multigrid: bool, coarse_dofs: int) -> float:
+    """The peak bytes of a run of `dofs` unknowns, whatever its mesh (a level's, an adaptive
+    step's); `coarse_dofs`: a geometric multigrid's coarsest level, whose LU it holds."""
+    if not factorises:
+        if multigrid:
+            return multigrid_bytes(dofs, coarse_dofs, dimension)
+        return BYTES_PER_DOF_ITERATIVE[dimension] * dofs
+    if dimension == 2:
+        return BASE_BYTES + BYTES_PER_DOF * dofs
+    return BYTES_PER_DOF_3D * dofs * max(1.0, dofs / DOFS_3D_MEASURED) ** (1 / 3)
+
+
+def multigrid_bytes(dofs: int, coarse_dofs: int, dimension: int) -> float:
+    """The peak of a geometric multigrid's run of `dofs` unknowns (see MULTIGRID_START_MIB):
+    start-up, the matrices per unknown, the LU of the coarsest level (`coarse_dofs`)."""
     reference_dofs, reference_mib = MULTIGRID_COARSE_LU[dimension]
     mib = (MULTIGRID_START_MIB[dimension] + MULTIGRID_MIB_PER_DOF[dimension] * dofs
            + reference_mib * (coarse_dofs / reference_dofs) ** (4 / 3))

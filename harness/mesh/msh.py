@@ -91,3 +91,24 @@ def mark_small_cells(path: Path, small: bool) -> None:
         marker.touch()
     else:
         marker.unlink(missing_ok=True)
+
+
+def coarser_marker(path: Path) -> Path:
+    """The file beside a mesh that names, one per line and finest first, the coarser meshes
+    it is nested in, for a geometric multigrid over meshes no level rule describes: the
+    adaptive loop's steps, each a refinement of the ones before (harness/study/adapt.py)."""
+    return path.with_name(path.name + ".coarser")
+
+
+def mark_coarser(path: Path, coarser: list[Path]) -> None:
+    marker = coarser_marker(path)
+    if coarser:
+        marker.write_text("".join(f"{c.resolve()}\n" for c in coarser))
+    else:
+        marker.unlink(missing_ok=True)
+
+
+def marked_coarser(path: Path) -> list[Path] | None:
+    """The coarser meshes `mark_coarser` named for `path`, or None when it named none."""
+    marker = coarser_marker(path)
+    return [Path(line) for line in marker.read_text().splitlines() if line] if marker.exists() else None

@@ -17,7 +17,7 @@ from harness.core import freefem
 from harness.core.errors import SceneError
 from harness.core.layout import Layout
 from harness.mesh.mesh import coarser_meshes, family_levels
-from harness.mesh.msh import small_cells_marker
+from harness.mesh.msh import marked_coarser, small_cells_marker
 from harness.run import launcher, petsc_plugin
 from harness.run.cache import run_inputs, sha256_file
 from harness.run.script import main_script
@@ -118,6 +118,9 @@ def make_plan(scene: Scene, mesh: Path, n: int, layout: Layout, warm: WarmStart 
     described = {**scene.run_inputs(), "start": guess}
     if ranks.parallel:  # a run on other ranks is another measurement (same solution to round-off)
         described["ranks"] = ranks.count
+    coarser = marked_coarser(mesh) if scene.multigrid_levels else None
+    if coarser:  # the key holds no -mg.mesh file: the levels a step was solved with are its input
+        described["multigrid_meshes"] = [sha256_file(c) for c in coarser]
     if start and start.key:
         described["start_key"] = start.key
     elif start:
@@ -147,9 +150,15 @@ def invocation(scene: Scene, mesh: Path, n: int, layout: Layout, guess: str, sta
     options += solver.freefem_options(scene.solver_options)
     meshes: list[tuple[int, Path]] = []
     if scene.multigrid_levels:
-        multigrid = levels_and_meshes(scene, n, scene.multigrid_levels, scene.sections.run.multigrid_coarsest, directory)
-        meshes += multigrid
-        for _, coarse in multigrid:
+        # An adaptive step names its own levels: the earlier steps it refines (exactly nested),
+        # where the scene's uniform family is not nested in it.
+        adapted = marked_coarser(mesh)
+        if adapted is None:
+            multigrid = levels_and_meshes(scene, n, scene.multigrid_levels, scene.sections.run.multigrid_coarsest,
+                                          directory)
+            meshes += multigrid
+            adapted = [coarse for _, coarse in multigrid]
+        for coarse in adapted:
             options += ["-mg.mesh", str(coarse)]
     if (isinstance(scene.geometry, GmshGeometry) and scene.geometry.small_cells(n)) or small_cells_marker(mesh).exists():
         options += ["-mesh.small_cells", "1"]

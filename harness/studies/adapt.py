@@ -1,14 +1,17 @@
 """`python -m harness adapt CASE`: adaptive refinement driven by the a posteriori error
-estimate, in 2D (docs/adaptivity.md), into results/adapt/<case>/.
+estimate, in 2D and 3D (docs/adaptivity.md), into results/adapt/<case>/.
 
 Each step solves on the refinement of the step before: Dörfler marking of the recovery
-estimate (--bulk), newest-vertex bisection. The true error of every step, and of the case's
-uniform levels, is measured against one overkill reference (the last mesh bisected uniformly),
-or against the exact fields of a manufactured case (which then solves no reference).
-Writes adapt.csv (per step: dofs, the estimate and the error per field, Newton iterations,
-time, memory, mesh quality), uniform.csv, summary.json (rates in N per field: 0.5 is
-optimal in 2D), adapt.png (error against dofs, adaptive and uniform) and mesh.png (the
-last adapted mesh).
+estimate (--bulk), newest-vertex bisection in 2D, longest-edge bisection in 3D. The true error
+of every step, and of the case's uniform levels, is measured against one overkill reference
+(the last mesh refined uniformly), or against the exact fields of a manufactured case (which
+then solves no reference). Writes adapt.csv (per step: dofs, the estimate and the error per
+field, Newton iterations, time, memory, mesh quality), uniform.csv, summary.json (rates in N
+per field: 1/d is optimal; effectivities; the first step that matches the finest uniform
+level), adapt.png (error against dofs, adaptive and uniform) and mesh.png (the last adapted
+mesh; in 3D its lowest face). Every step and the reference pass the physical checks or the
+verdict fails; a step or reference that would not fit in memory ends it with exit 4, the
+steps done reported.
 """
 
 from __future__ import annotations
@@ -19,14 +22,18 @@ import os
 import sys
 from pathlib import Path
 
+import numpy as np
 import pandas as pd
 
-from harness.study.adapt import DEFAULT_BULK, Adaptation, adapt, check_adaptable, errors_against, uniform_runs
+from harness.study.adapt import (DEFAULT_BULK, Adaptation, adapt, adaptive_overrides, check_adaptable,
+                                 errors_against, uniform_runs)
 from harness.arguments import add_case, add_common, positive_int
 from harness.study.engine import quiet
 from harness.measure.fields import read_fields
 from harness.core.layout import Layout
 from harness.measure.norm_table import FIELD_NAMES, error_label
+from harness.core.errors import EnvironmentFault
+from harness.measure.run_checks import failed_checks, print_checks
 from harness.study.pipeline import Guarded, Plan, run_pipeline, scene_of
 from harness.measure.rates import slope_fit
 from harness.run.run import check_solver_files
@@ -64,7 +71,11 @@ def rate_in_dofs(dofs: pd.Series, errors: pd.Series, dimension: int) -> float:
 def run(args: argparse.Namespace) -> int:
     scene = scene_of(args.case, args.overrides)
     check_adaptable(scene)
-    reference_scene = scene_of(args.case, [*args.overrides, f'scene.name="{scene.name}_reference"'])
+    # The steps and the reference coarsen through adapted meshes (adaptive_overrides); the
+    # uniform levels keep the scene's own solver and their cached runs.
+    adaptive = [*args.overrides, *adaptive_overrides(scene)]
+    scene = scene_of(args.case, adaptive)
+    reference_scene = scene_of(args.case, [*adaptive, f'scene.name="{scene.name}_reference"'])
     uniform_scene = scene_of(args.case, [*args.overrides, f'scene.name="{scene.name}_uniform"'])
     layout = Layout(results=args.results / "adapt", freefem=args.freefem)
     out = layout.case_dir(scene.name)
@@ -77,18 +88,25 @@ def run(args: argparse.Namespace) -> int:
         check_solver_files(scene, layout)
         # A manufactured case measures its errors against its exact fields: no reference to solve.
         adaptation = adapt(scene, None if scene.manufactured else reference_scene, layout, args.steps, args.bulk,
-                           args.max_dofs, args.force, quiet, lambda line: print(line, file=sys.stderr, flush=True))
-        uniform = uniform_runs(uniform_scene, layout, tuple(scene.levels), args.force, quiet)
+                           args.max_dofs, args.force, quiet, lambda line: print(line, file=sys.stderr, flush=True),
+                           memory_guard=not args.ignore_memory)
+        # Without a reference (it would not fit) a real scene's uniform levels have nothing to be measured against.
+        measured = scene.manufactured or adaptation.reference is not None
+        uniform = uniform_runs(uniform_scene, layout, tuple(scene.levels), args.force, quiet) if measured else {}
         return adaptation, uniform
 
     def report(result: tuple[Adaptation, dict]) -> None:
         adaptation, uniform = result
         fields = solved_fields(adaptation, scene.fields)
-        # A manufactured case measures every run against its exact fields, in the same norms.
-        exact = adaptation.reference is None
-        reference = None if exact else read_fields(adaptation.reference.solution)
+        # A manufactured case measures every run against its exact fields, in the same norms; a
+        # real scene whose reference would not fit in memory has its estimates alone.
+        exact = scene.manufactured
+        unmeasured = not exact and adaptation.reference is None
+        reference = None if exact or unmeasured else read_fields(adaptation.reference.solution)
 
         def errors(run) -> dict[str, float]:  # noqa: ANN001 (a RunResult)
+            if unmeasured:
+                return {f: math.nan for f in fields}
             return dict(run.record.mms_measure_errors) if exact else errors_against(reference, run, fields)
 
         rows = []
@@ -104,6 +122,7 @@ def run(args: argparse.Namespace) -> int:
         coarser = {n: run for n, run in sorted(uniform.items())
                    if exact or run.record.dofs < adaptation.reference.record.dofs}
         flat = pd.DataFrame([{"n": n, "dofs": run.record.dofs,
+                              **{f"eta_{f}": (run.record.estimator or {}).get(f, math.nan) for f in fields},
                               **{f"err_{f}": v for f, v in errors(run).items() if f in fields},
                               "newton_iterations": run.record.newton_iterations, "wall_s": run.record.wall_s,
                               "peak_mib": run.record.peak_rss_mb}
@@ -115,20 +134,26 @@ def run(args: argparse.Namespace) -> int:
         # measured error low and the rate high); the rate of the estimate, which needs no
         # reference, over the whole later half.
         later = table.iloc[len(table) // 2:]
-        window = later if exact else later[later["dofs"] * 16 <= adaptation.reference.record.dofs]
+        window = later if exact or unmeasured else later[later["dofs"] * 16 <= adaptation.reference.record.dofs]
         summary = {
             "case": scene.name, "steps": len(table), "bulk": args.bulk,
-            "errors_against": "the exact fields" if exact else "the reference",
-            "reference": None if exact else {"dofs": adaptation.reference.record.dofs,
+            "errors_against": "the exact fields" if exact else "nothing: no reference" if unmeasured else "the reference",
+            "reference": None if exact or unmeasured else {"dofs": adaptation.reference.record.dofs,
                                              "mesh": os.path.relpath(adaptation.reference_mesh, out),
                                              "estimate": adaptation.reference.record.estimator},
             "rate_in_dofs": {"optimal": 1.0 / scene.dimension,
-                             "adaptive": {f: rate_in_dofs(window["dofs"], window[f"err_{f}"], scene.dimension) for f in fields},
+                             "adaptive": {f: math.nan if unmeasured else
+                                          rate_in_dofs(window["dofs"], window[f"err_{f}"], scene.dimension)
+                                          for f in fields},
                              "adaptive_estimate": {f: rate_in_dofs(later["dofs"], later[f"eta_{f}"], scene.dimension)
                                                    for f in fields},
                              "adaptive_steps": window["step"].tolist(),
-                             "uniform": {f: rate_in_dofs(flat["dofs"], flat[f"err_{f}"], scene.dimension) for f in fields}},
+                             "uniform": {f: rate_in_dofs(flat["dofs"], flat[f"err_{f}"], scene.dimension)
+                                         if len(flat) else math.nan for f in fields}},
             "effectivity_last": {f: table[f"eta_{f}"].iloc[-1] / table[f"err_{f}"].iloc[-1] for f in fields},
+            "effectivity_range": {f: [float((table[f"eta_{f}"] / table[f"err_{f}"]).min()),
+                                      float((table[f"eta_{f}"] / table[f"err_{f}"]).max())] for f in fields},
+            "matching_uniform": matching_uniform(table, flat, fields),
         }
         band = list(scene.sections.study.adaptive_band)
         summary["adaptive_band"] = band
@@ -145,20 +170,46 @@ def run(args: argparse.Namespace) -> int:
                                 for k in ("adaptive", "adaptive_estimate", "uniform"))))
 
     def verdict(result: tuple[Adaptation, dict]) -> str | None:
-        """The case's [study] adaptive_band, on each field's slope of its estimate against
-        N^(-1/d) over the later half of the steps (1 optimal): the estimate needs no
-        reference, whose own error would bias the measured errors' slopes upward."""
+        """Every step's and the reference's physical checks, printed as a convergence study
+        prints its levels'; a step or reference that would not fit in memory then ends in exit 4
+        (the steps done reported); then the case's [study] adaptive_band, on each field's slope
+        of its estimate against N^(-1/d) over the later half of the steps (1 optimal): the
+        estimate needs no reference, whose own error would bias the measured errors' slopes
+        upward."""
+        adaptation, _ = result
+        runs = [step.run for step in adaptation.steps] + ([adaptation.reference] if adaptation.reference else [])
+        failed = failed_checks(print_checks(scene, runs))
+        if adaptation.refused:
+            raise EnvironmentFault(adaptation.refused)
         summary = judged.get("summary") or {}
         band = summary.get("adaptive_band") or []
-        if not band:
-            return None
-        outside = [f"{f} {v:.3f}" for f, v in summary["slope_of_estimate"].items() if not band[0] <= v <= band[1]]
-        return (f"{scene.name}: adaptive slope against N^(-1/{scene.dimension}) outside the band "
-                f"[{band[0]}, {band[1]}]: " + ", ".join(outside)) if outside else None
+        outside = [f"{f} {v:.3f}" for f, v in summary.get("slope_of_estimate", {}).items()
+                   if band and not band[0] <= v <= band[1]]
+        if outside:
+            return (f"{scene.name}: adaptive slope against N^(-1/{scene.dimension}) outside the band "
+                    f"[{band[0]}, {band[1]}]: " + ", ".join(outside))
+        return f"{scene.name}: {failed}" if failed else None
 
     judged: dict = {}
     run_pipeline(plan, runs, report, verdict)
     return 0
+
+
+def matching_uniform(table: pd.DataFrame, flat: pd.DataFrame, fields: tuple[str, ...]) -> dict:
+    """For the finest uniform level measured, per field: the first step whose error is at most
+    that level's, its dofs and their share of the level's; and the same by the estimate, which
+    needs no reference (both sides are estimated alike, so its own bias cancels to first order)."""
+    if not len(flat):
+        return {}
+    finest = flat.iloc[-1]
+    out: dict = {"n": int(finest["n"]), "dofs": int(finest["dofs"])}
+    for kind in ("err", "eta"):
+        for f in fields:
+            beats = table[table[f"{kind}_{f}"] <= finest[f"{kind}_{f}"]]
+            first = beats.iloc[0] if len(beats) else None
+            out[f"{kind}_{f}"] = None if first is None else {
+                "step": int(first["step"]), "dofs": int(first["dofs"]), "share": float(first["dofs"] / finest["dofs"])}
+    return out
 
 
 def solved_fields(adaptation: Adaptation, fields: tuple[str, ...]) -> tuple[str, ...]:
@@ -203,11 +254,17 @@ def plot_mesh(mesh: Path, path: Path, name: str) -> None:
     import meshio
 
     m = meshio.read(mesh)
-    triangles = [b.data for b in m.cells if b.type == "triangle"][0]
-    figure, ax = plt.subplots(figsize=(8, 4.5))
+    triangles = np.vstack([b.data for b in m.cells if b.type == "triangle"])
+    tetrahedra = sum(len(b.data) for b in m.cells if b.type == "tetra")
+    title = f"{name}: the last adapted mesh ({len(triangles)} cells)"
+    if tetrahedra:  # a 3D mesh: its boundary triangles on the lowest plane, seen from below
+        low = m.points[:, 2].min()
+        triangles = triangles[np.isclose(m.points[triangles, 2], low, rtol=0, atol=1e-9 * np.ptp(m.points)).all(axis=1)]
+        title = f"{name}: the last adapted mesh ({tetrahedra} tetrahedra), its face z = {low:g}"
+    figure, ax = plt.subplots(figsize=(8, 4.5) if not tetrahedra else (6.5, 6.5))
     ax.triplot(m.points[:, 0], m.points[:, 1], triangles, linewidth=0.25, color="k")
     ax.set_aspect("equal")
-    ax.set_title(f"{name}: the last adapted mesh ({len(triangles)} cells)")
+    ax.set_title(title)
     figure.tight_layout()
     figure.savefig(path, dpi=130)
     plt.close(figure)
