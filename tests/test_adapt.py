@@ -387,3 +387,18 @@ def test_a_3d_step_far_below_the_2d_reader_floor_is_read_and_solved(tmp_path):
                       layout, None, False, no_progress).record.mms_measure_errors
     for field in ("u", "phi", "theta"):  # the corner's refinement leaves the rest as coarse as level 2
         assert 0 < errors[field] <= 1.01 * coarse[field], (field, errors, coarse)
+
+
+def test_the_adaptive_steps_add_null_pivot_detection_to_a_multigrids_coarse_lu_only():
+    """A 3D multigrid scene's steps get MUMPS's null-pivot detection on the coarsest level (a
+    Galerkin product of the indefinite tangent can be singular: disc_pad's fifth step failed
+    without it); a scene without a multigrid keeps its options; asking twice adds it once."""
+    from harness.study.adapt import NULL_PIVOTS, adaptive_overrides
+
+    disc = load_scene(REPO / "cases" / "disc_pad.toml")
+    overrides = adaptive_overrides(disc)
+    adapted = load_scene(REPO / "cases" / "disc_pad.toml", overrides)
+    assert adapted.petsc_options == f"{disc.petsc_options} {NULL_PIVOTS}"
+    assert adapted.multigrid_levels == disc.multigrid_levels
+    assert adaptive_overrides(adapted) == []
+    assert adaptive_overrides(load_scene(PAPER)) == []

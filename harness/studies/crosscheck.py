@@ -17,7 +17,7 @@ import pandas as pd
 
 from harness.arguments import add_common, name_list, positive_int, study_levels
 from harness.measure.crosscheck import TOLERANCE, differences, integral_differences
-from harness.study.adapt import DEFAULT_BULK, adapt
+from harness.study.adapt import DEFAULT_BULK, adapt, adaptive_overrides
 from harness.study.engine import InlineMeshes, quiet, run_levels, runs_of
 from harness.core.errors import Disagreement, FieldsError, RunError, SceneError
 from harness.measure.fields import Fields, read_fields
@@ -142,7 +142,8 @@ def compare_adapted(scene: Scene, start: str, steps: int, overrides: list[str], 
     """Both codes on the mesh of the adaptive loop's step `steps` (harness/study/adapt.py: the
     loop warm-starts, so it runs as a scene of its own), each from the branch's start. Its row
     names the mesh; its n is the step."""
-    looping = load_scene(scene.source, [*overrides, f"scene.name={scene.name}_adapting", "scene.initial_guess=coarser"])
+    looping = load_scene(scene.source, [*overrides, *adaptive_overrides(scene), f"scene.name={scene.name}_adapting",
+                                        "scene.initial_guess=coarser"])
     adaptation = adapt(looping, None, layout, steps, DEFAULT_BULK, None, force, quiet, lambda line: None)
     last = adaptation.steps[-1]
     compared = load_scene(scene.source, [*overrides, f"scene.name={scene.name}_adapted", f"scene.initial_guess={start}"])
