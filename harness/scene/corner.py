@@ -44,6 +44,7 @@ def williams_exponent(omega: float) -> float:
     lam = 0 left out): the mode-I exponent of a wedge of half-angle omega (in (0, pi])."""
     if not 0 < omega <= math.pi:
         raise ValueError(f"a wedge's half-angle is in (0, pi], not {omega}")
+
     def characteristic(lam: mpmath.mpf) -> mpmath.mpf:
         return mpmath.sin(2 * omega * lam) + lam * mpmath.sin(2 * omega)
 

@@ -266,15 +266,16 @@ def scene_macros(scene, layout: Layout) -> dict[str, str]:
             raise SceneError("manufactured.williams needs one isotropic material; this scene has material regions")
         return region_macros(exact, scene, layout)
     constants = material_constants(scene.material, layout, tuple(scene.poling_macros().items()), scene.dimension)
-    return macros(corner_derived(exact, constants, scene.effects), scene.dimension)
+    return macros(corner_derived(exact, constants, scene.effects, scene.dimension), scene.dimension)
 
 
-def corner_derived(exact: Exact, constants: Mapping[str, float], effects: tuple[str, ...]) -> dict[str, sympy.Expr]:
-    """derive() of a 2D exact field with its corner mode added (with_corner_mode). The mode's
+def corner_derived(exact: Exact, constants: Mapping[str, float], effects: tuple[str, ...],
+                   dimension: int = 2) -> dict[str, sympy.Expr]:
+    """derive() of an exact field with its corner mode added (with_corner_mode; 2D). The mode's
     fluxes and sources are expanded: sympy's chain rule through atan2 and the radius leaves a
     body force of 7,263 operations (47k characters of FreeFEM) whose terms cancel to round-off;
     expanded, like terms merge and 1,697 remain, and each run's assembly evaluates that many."""
-    derived = derive(with_corner_mode(exact, constants), constants, effects)
+    derived = derive(with_corner_mode(exact, constants), constants, effects, dimension)
     if exact.williams == 0:
         return derived
     return {k: v if k in CONTINUOUS else sympy.expand(v) for k, v in derived.items()}
