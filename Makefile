@@ -103,14 +103,16 @@ modules-doc: $(STAMP)
 
 # Adaptive refinement driven by the error estimate (docs/adaptivity.md): the paper's scene,
 # the strip actuator and the disc on its pad (3D), each against its uniform levels, and the
-# singular known answer on the L-shaped domain against its exact field, into
-# results/adapt/<case>/. The disc's reference (~700k dofs, multigrid over the adapted steps)
-# peaks near 2.5 GB.
+# singular known answers on the L-shaped domain (temperature, potential, displacement) against
+# their exact fields, into results/adapt/<case>/. The disc's reference (~800k dofs, multigrid
+# over the adapted steps) peaks near 2.6 GB.
 .PHONY: adapt
 adapt: $(STAMP) freefem
 	$(PY) -m harness adapt cases/paper.toml --steps 40 --max-dofs 30000
 	$(PY) -m harness adapt cases/strip_actuator.toml --steps 40 --max-dofs 30000
 	$(PY) -m harness adapt cases/mms/lshape.toml --steps 40 --max-dofs 40000
+	$(PY) -m harness adapt cases/mms/lshape_phi.toml --steps 40 --max-dofs 40000
+	$(PY) -m harness adapt cases/mms/lshape_u.toml --steps 40 --max-dofs 40000
 	$(PY) -m harness adapt cases/disc_pad.toml --steps 40 --max-dofs 100000
 
 # Verification beyond self-convergence (issue 6): true errors of the manufactured cases
