@@ -86,8 +86,9 @@ CELL_TYPES = {2: ("triangle", "line"), 3: ("tetra", "triangle")}
 
 
 # MUMPS's null-pivot detection (ICNTL(24) = 1, in the MUMPS users' guide) for the LU of
-# a multigrid's coarsest level. The tangent is indefinite (the electric block has the opposite
-# sign), so a Galerkin product R A P of it can be singular where A is not: disc_pad's fifth step
+# a multigrid's coarsest level. The tangent is not symmetric positive definite (elasticity
+# coupled to electrostatics and heat, and contact), so a Galerkin product R A P of it can be
+# singular where A is not: disc_pad's fifth step
 # failed in PETSc's set-up (reason -11) with every coarser step and with the uniform n = 2 as
 # its coarsest level, and solves in 3 Newton steps with it. The outer FGMRES still converges to
 # the run's tolerance, so the answer does not depend on it.
@@ -156,7 +157,7 @@ def reference_of(mesh: SimplexMesh) -> SimplexMesh:
     bisection (each triangle into four or more). 3D: one red split along each octahedron's
     shortest diagonal (tet_split, Ong 1994): eight children of every tetrahedron, of its
     quality, where three rounds of longest-edge bisection gave eight or more (10.7 times the
-    nodes on disc_pad) and the shapes of repeated bisection."""
+    unknowns on disc_pad) and the shapes of repeated bisection."""
     if mesh.cells.shape[1] == 4:
         return tet_split.split(mesh)
     return bisection.uniform(mesh, 2)
