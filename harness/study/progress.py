@@ -39,11 +39,11 @@ class Usage:
     peak_mib: float
 
     def __str__(self) -> str:
-        return f"FreeFEM CPU {self.cpu_s:.0f} s, {self.rss_mib / 1024:.2f} GiB resident (peak {self.peak_mib / 1024:.2f})"
+        return f"FreeFEM CPU {self.cpu_s:.1f} s, {self.rss_mib / 1024:.2f} GiB resident (peak {self.peak_mib / 1024:.2f})"
 
 
 def usage_of(pid: int) -> Usage | None:
-    """/proc's view of a live process (Linux); None once it is gone or where /proc is not."""
+    """/proc's view of a live process (Linux); None once it has exited or where /proc is not."""
     try:
         fields = Path(f"/proc/{pid}/stat").read_text().rsplit(")", 1)[1].split()
         status = Path(f"/proc/{pid}/status").read_text().splitlines()
@@ -52,7 +52,9 @@ def usage_of(pid: int) -> Usage | None:
     # stat's fields after the command name: utime and stime are the 12th and 13th (proc(5)).
     cpu = (int(fields[11]) + int(fields[12])) / os.sysconf("SC_CLK_TCK")
     kib = {line.split(":")[0]: float(line.split()[1]) for line in status if line.startswith(("VmRSS:", "VmHWM:"))}
-    return Usage(cpu, kib.get("VmRSS", 0.0) / 1024, kib.get("VmHWM", 0.0) / 1024)
+    if "VmRSS" not in kib:  # a process that has exited and is not yet reaped holds no memory to report
+        return None
+    return Usage(cpu, kib["VmRSS"] / 1024, kib.get("VmHWM", kib["VmRSS"]) / 1024)
 
 
 class NewLines:
