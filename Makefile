@@ -29,7 +29,8 @@ paper3d: $(STAMP) freefem
 	$(PAPER3D_LOCK) $(PY) -m harness convergence cases/paper3d.toml --set scene.coarsest_guess=pressed --set scene.name=paper3d_pressed
 
 # A convergence study of every scene in cases/ and one table of their unknowns, dofs,
-# times and slopes (results/scenes/summary.csv).
+# times and slopes (results/scenes/summary.csv). paper3d's study is make paper3d's zero branch,
+# to h = 1/64 (~15 GB; its levels are reused when make paper3d has run them).
 scenes: $(STAMP) freefem
 	$(PY) -m harness scenes $(CLUSTER_FLAGS)
 
