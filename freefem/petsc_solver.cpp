@@ -864,7 +864,7 @@ long bulkDestroy(long const &id) {
 // tests/test_lean_bulk.py: the K built here equals the block-assembled one entry by entry.
 struct KernelBlock {
   PetscInt rowOffset = 0, colOffset = 0;   // the fields' first rows and columns in K
-  int rowComponents = 1, colComponents = 1;
+  int rowComponents = 1, colComponents = 1, dim = 0;
   std::vector<double> d;                   // (rowComponents (dim+1)) x (colComponents (dim+1)), row-major
 };
 std::vector<std::vector<KernelBlock>> kernelBlocks;   // by bulk matrix id
@@ -878,7 +878,8 @@ long bulkKernelBlock(long const &id, KN<long> *const &layout, KN<double> *const 
   KernelBlock k;
   k.rowOffset = (*layout)[0]; k.rowComponents = (int)(*layout)[1];
   k.colOffset = (*layout)[2]; k.colComponents = (int)(*layout)[3];
-  long channels = (*layout)[4] + 1;
+  k.dim = (int)(*layout)[4];
+  long channels = k.dim + 1;
   if (d->N() != k.rowComponents * channels * k.colComponents * channels || k.rowOffset < 0 || k.colOffset < 0) {
     lastMessage = "a kernel block's matrix does not match its components";
     return fail(PETSC_ERR_ARG_SIZ, "bulk kernel block");
@@ -955,6 +956,11 @@ PetscErrorCode kernelAssemble(Bulk &b, const std::vector<KernelBlock> &blocks, c
   for (const KernelBlock &k : blocks) order.push_back(&k);
   std::stable_sort(order.begin(), order.end(), [](const KernelBlock *x, const KernelBlock *y) {
     return x->rowOffset != y->rowOffset ? x->rowOffset < y->rowOffset : x->colOffset < y->colOffset; });
+  for (const KernelBlock *k : order)
+    if (k->dim != dim) {
+      lastMessage = "a kernel block was read off a mesh of another dimension";
+      return PETSC_ERR_ARG_WRONG;
+    }
   for (const KernelBlock *k : order)
     if (k->rowOffset + (PetscInt)th.nv * k->rowComponents > b.n || k->colOffset + (PetscInt)th.nv * k->colComponents > b.n) {
       lastMessage = "a kernel block reaches past K: the mesh is not the fields' mesh";
