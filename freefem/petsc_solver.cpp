@@ -1079,11 +1079,18 @@ int mpiRank() {
   return r;
 }
 
-// An error of a collective call: every rank gets it, rank 0 says it.
+// An error on one rank or on all: each rank that meets it says it, with its rank (the harness
+// reports the first line), and the script ends every rank with petscRanksAbort.
 long failRanks(PetscErrorCode ierr, const std::string &where) {
-  if (mpiRank() == 0) return fail(ierr, where);
-  lastMessage.clear();
-  return kPetscError;
+  return fail(ierr, where + " (rank " + std::to_string(mpiRank()) + ")");
+}
+
+// Ends every rank with `code`: the ranks still waiting in a collective call for the one that
+// failed would otherwise wait for ever (MPI_Abort; the launcher returns its code).
+long ranksAbort(long const &code) {
+  std::cout.flush();
+  MPI_Abort(PETSC_COMM_WORLD, (int)code);
+  return code;
 }
 #define TRYRANKS(call, where) do { PetscErrorCode ierr_ = (call); if (ierr_) return failRanks(ierr_, where); } while (0)
 
@@ -1291,7 +1298,10 @@ PetscErrorCode ranksOperator(const RanksPart &p, Matrice_Creuse<double> *A, Mat 
 // The distributed interpolation of the Newton vector from multigrid level k + 1 onto level k
 // (0 the Newton mesh) from the nodal one: on level 0 its rows are this rank's local nodes
 // (the script interpolates the whole coarse mesh onto the subdomain) and it sets the rows of
-// the dofs it owns, Dirichlet ones zero (attachLevels); below, every rank has the whole nodal
+// the dofs it owns, Dirichlet ones zero (attachLevels) but kept in the pattern: a coarse dof
+// whose hat reaches only Dirichlet dofs then still has its diagonal in the Galerkin product,
+// where PCMG sets one (across ranks MatGalerkin's MatDiagonalSet may not add an entry: "new
+// nonzero caused a malloc", 2D n = 16 on 4 ranks); below, every rank has the whole nodal
 // interpolation between two coarse meshes and sets the rows of PETSc's even split, the layout
 // of the coarse levels (their natural numbering).
 PetscErrorCode ranksInterpolation(const RanksPart &p, Mat nodal, size_t level, Mat *out) {
@@ -1333,9 +1343,9 @@ PetscErrorCode ranksInterpolation(const RanksPart &p, Mat nodal, size_t level, M
         if (level == 0) row = p.index[dof];
         idx.clear();
         val.clear();
-        if (!(level == 0 && p.dirichlet[dof]))
-          for (PetscInt k = 0; k < count; ++k)
-            if (cv[k] != 0.0) { idx.push_back(coarseOffset + cj[k] * bs + comp); val.push_back(cv[k]); }
+        bool fixed = level == 0 && p.dirichlet[dof];
+        for (PetscInt k = 0; k < count; ++k)
+          if (cv[k] != 0.0) { idx.push_back(coarseOffset + cj[k] * bs + comp); val.push_back(fixed ? 0.0 : cv[k]); }
         if (!idx.empty()) PetscCall(MatSetValues(*out, 1, &row, (PetscInt)idx.size(), idx.data(), val.data(), INSERT_VALUES));
       }
       PetscCall(MatRestoreRow(nodal, i, &count, &cj, &cv));
@@ -1441,8 +1451,7 @@ long ranksSolve(long const &id, Matrice_Creuse<double> *const &A, KN<double> *co
     std::string unused;
     TRYRANKS(unusedOptions(*c, &unused), "options");
     if (!unused.empty()) {
-      if (mpiRank() == 0)
-        std::cout << "error: PETSc option(s) " << unused
+      std::cout << "error: PETSc option(s) " << unused
                   << " never used (misspelt, or for another solver or preconditioner)" << std::endl;
       VecDestroy(&vb);
       VecDestroy(&vx);
@@ -1523,6 +1532,7 @@ static void init() {
   Global.Add("petscRanksPart", "(", new OneOperator3_<long, KN<double> *, KN<double> *, KN<double> *>(ranksPart));
   Global.Add("petscRanksCreate", "(",
              new OneOperator6_<long, long, string *, string *, KN<long> *, KN<long> *, KN<double> *>(ranksCreate));
+  Global.Add("petscRanksAbort", "(", new OneOperator1_<long, long>(ranksAbort));
   Global.Add("petscRanksSolve", "(",
              new OneOperator6_<long, long, Matrice_Creuse<double> *, KN<double> *, KN<double> *, double, long>(ranksSolve));
   ff_atend(finish);
