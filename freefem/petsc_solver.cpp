@@ -1093,6 +1093,10 @@ long ranksAbort(long const &code) {
   return code;
 }
 #define TRYRANKS(call, where) do { PetscErrorCode ierr_ = (call); if (ierr_) return failRanks(ierr_, where); } while (0)
+// An error inside the Krylov solve or its preconditioner's set-up (a failed factorisation,
+// -ksp_error_if_not_converged, ...): the solve failed, not the options (freefem/petsc_ranks.idp).
+const long kKrylovError = -4;
+#define TRYKRYLOV(call, where) do { PetscErrorCode ierr_ = (call); if (ierr_) { failRanks(ierr_, where); return kKrylovError; } } while (0)
 
 RanksPart *partOf(long id) {
   if (id < 0 || id >= (long)partOfContext.size() || partOfContext[id] < 0) return nullptr;
@@ -1447,9 +1451,9 @@ long ranksSolve(long const &id, Matrice_Creuse<double> *const &K, Matrice_Creuse
   c->cpuSetup = 0;
   if (rebuild) {
     PC pc;
-    TRYRANKS(KSPSetUp(c->ksp), "set-up");
+    TRYKRYLOV(KSPSetUp(c->ksp), "set-up");
     TRYRANKS(KSPGetPC(c->ksp, &pc), "set-up");
-    TRYRANKS(PCSetUp(pc), "preconditioner set-up");
+    TRYKRYLOV(PCSetUp(pc), "preconditioner set-up");
     c->lastSetup = now() - t0;
     c->cpuSetup = cpu() - s0;
     c->totalSetup += c->lastSetup;
@@ -1465,7 +1469,7 @@ long ranksSolve(long const &id, Matrice_Creuse<double> *const &K, Matrice_Creuse
     if (p->own[i]) in[p->index[i] - p->first] = p->dirichlet[i] ? 0.0 : (*b)[i];
   TRYRANKS(VecRestoreArray(vb, &in), "vector");
   double t1 = now(), s1 = cpu();
-  TRYRANKS(KSPSolve(c->ksp, vb, vx), "solve");
+  TRYKRYLOV(KSPSolve(c->ksp, vb, vx), "solve");
   if (!c->checkedOptions) {
     c->checkedOptions = true;
     std::string unused;
