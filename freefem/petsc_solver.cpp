@@ -1051,7 +1051,7 @@ long destroy(long const &id) {
 //   int part = petscRanksPart(natural, D, dirichlet);      // who owns which dof, PETSc's numbering
 //   int id = petscRanksCreate(part, options, names, sizes, blocks, coords);
 //   petscAddLevel(id, interpolation);                      // multigrid levels, as on one rank
-//   int its = petscRanksSolve(id, K, T, b, x, rtol, reuse);   // this rank's K, T; b, x consistent
+//   int its = petscRanksSolve(id, bulk, T, b, x, rtol, reuse);   // this rank's K (petscBulk*), T
 //
 // Each dof is owned by the lowest rank whose D is non-zero there; a rank's owned dofs are
 // consecutive in PETSc's numbering, in the order of its Newton vector, so each field's owned
@@ -1249,41 +1249,38 @@ long ranksCreate(long const &part, string *const &options, string *const &names,
   return id;
 }
 
-// The distributed operator from this rank's matrices K and T (its subdomain's bulk matrix and
-// contact tangent, added here: FreeFEM's own K + T took 22 of a 3D n = 8 run's 32 s on 2
-// ranks). `like`: an earlier operator whose pattern serves as the preallocation (T may still
-// add entries); without one, a first pass through PETSc's preallocator counts them.
-PetscErrorCode localCsr(const RanksPart &p, Matrice_Creuse<double> *A, MatriceMorse<double> **out) {
-  MatriceMorse<double> *a = A->A ? dynamic_cast<MatriceMorse<double> *>(&*A->A) : nullptr;
-  *out = nullptr;
-  if (!A->A) return 0;   // an empty T: no contact tangent yet
-  if (!a || a->half || a->n != p.local || a->m != p.local) {
-    lastMessage = "the subdomain's matrix is not a full sparse matrix of its " + std::to_string(p.local) + " dofs";
+// The distributed operator from this rank's K and T: K its subdomain's bulk matrix, held by the
+// plugin as on one rank (Bulk: 12 bytes an entry, FreeFEM's own matrix about 40) and never
+// changed on ranks, T its contact tangent; both are added here (FreeFEM's K + T took 22 of a 3D
+// n = 8 run's 32 s on 2 ranks). `like`: an earlier operator whose pattern serves as the
+// preallocation (T may still add entries); without one, a first pass through PETSc's
+// preallocator counts them.
+PetscErrorCode ranksOperator(const RanksPart &p, Bulk &bulk, Matrice_Creuse<double> *T, Mat like, Mat *out) {
+  MatriceMorse<double> *t = T->A ? dynamic_cast<MatriceMorse<double> *>(&*T->A) : nullptr;
+  if (T->A && (!t || t->half || t->n != p.local || t->m != p.local)) {
+    lastMessage = "the contact tangent is not a full sparse matrix of the subdomain's " + std::to_string(p.local) + " dofs";
     return PETSC_ERR_ARG_SIZ;
   }
-  a->CSR();
-  *out = a;
-  return 0;
-}
-
-PetscErrorCode ranksOperator(const RanksPart &p, Matrice_Creuse<double> *K, Matrice_Creuse<double> *T, Mat like,
-                             Mat *out) {
-  MatriceMorse<double> *k, *t;
-  PetscCall(localCsr(p, K, &k));
-  PetscCall(localCsr(p, T, &t));
-  if (!k) {
-    lastMessage = "the subdomain's bulk matrix is empty";
-    return PETSC_ERR_ARG_WRONG;
+  if (bulk.n != p.local) {
+    lastMessage = "the bulk matrix has " + std::to_string(bulk.n) + " rows where the subdomain has " + std::to_string(p.local) +
+                  " dofs";
+    return PETSC_ERR_ARG_SIZ;
   }
+  if (t) t->CSR();
+  PetscCall(restoreK(bulk));
+  Rows k;
+  PetscCall(openRows(bulk.J, &k));
   std::vector<PetscInt> cols;
   std::vector<PetscScalar> vals;
-  auto addRow = [&](Mat m, MatriceMorse<double> *a, PetscInt i) -> PetscErrorCode {
+  // Row i of a CSR matrix (its columns from..to of ja, values of a) weighted by D_i, without the
+  // Dirichlet columns, added into m.
+  auto addRow = [&](Mat m, PetscInt i, auto from, auto to, auto ja, const double *a) -> PetscErrorCode {
     cols.clear();
     vals.clear();
-    for (long q = a->p[i]; q < a->p[i + 1]; ++q) {
-      if (p.dirichlet[a->j[q]]) continue;
-      cols.push_back(p.index[a->j[q]]);
-      vals.push_back(p.weight[i] * a->aij[q]);
+    for (auto q = from; q < to; ++q) {
+      if (p.dirichlet[ja[q]]) continue;
+      cols.push_back(p.index[ja[q]]);
+      vals.push_back(p.weight[i] * a[q]);
     }
     return MatSetValues(m, 1, &p.index[i], (PetscInt)cols.size(), cols.data(), vals.data(), ADD_VALUES);
   };
@@ -1294,8 +1291,8 @@ PetscErrorCode ranksOperator(const RanksPart &p, Matrice_Creuse<double> *K, Matr
         continue;
       }
       if (p.weight[i] == 0) continue;
-      PetscCall(addRow(m, k, i));
-      if (t) PetscCall(addRow(m, t, i));
+      PetscCall(addRow(m, i, k.ia[i], k.ia[i + 1], k.ja, k.a));
+      if (t) PetscCall(addRow(m, i, t->p[i], t->p[i + 1], t->j, t->aij));
     }
     PetscCall(MatAssemblyBegin(m, MAT_FINAL_ASSEMBLY));
     return MatAssemblyEnd(m, MAT_FINAL_ASSEMBLY);
@@ -1316,7 +1313,8 @@ PetscErrorCode ranksOperator(const RanksPart &p, Matrice_Creuse<double> *K, Matr
     PetscCall(MatDestroy(&counter));
   }
   PetscCall(MatSetOption(*out, MAT_NEW_NONZERO_ALLOCATION_ERR, PETSC_FALSE));
-  return add(*out);
+  PetscCall(add(*out));
+  return closeRows(&k);
 }
 
 // The distributed interpolation of the Newton vector from multigrid level k + 1 onto level k
@@ -1411,11 +1409,12 @@ PetscErrorCode attachRanksLevels(Context &c, PC pc) {
 
 // x = (K + T)^-1 b over the ranks, to ||b - (K + T) x|| <= rtol ||b||, from x = 0; K and T
 // this rank's, b consistent; x comes back consistent. reuse as in solve() (one rank).
-long ranksSolve(long const &id, Matrice_Creuse<double> *const &K, Matrice_Creuse<double> *const &T,
-                KN<double> *const &b, KN<double> *const &x, double const &rtol, long const &reuse) {
+long ranksSolve(long const &id, long const &bulk, Matrice_Creuse<double> *const &T, KN<double> *const &b,
+                KN<double> *const &x, double const &rtol, long const &reuse) {
   Context *c = context(id);
   RanksPart *p = partOf(id);
-  if (!c || !p) return failRanks(PETSC_ERR_ARG_OUTOFRANGE, "solve");
+  Bulk *k = bulkOf(bulk);
+  if (!c || !p || !k || !k->J) return failRanks(PETSC_ERR_ARG_OUTOFRANGE, "solve");
   if (b->N() != p->local || x->N() != p->local) {
     lastMessage = "vectors of " + std::to_string(b->N()) + " and " + std::to_string(x->N()) + " entries where the subdomain has " +
                   std::to_string(p->local) + " dofs";
@@ -1424,7 +1423,7 @@ long ranksSolve(long const &id, Matrice_Creuse<double> *const &K, Matrice_Creuse
   double c0 = cpu();
   if (reuse < 2 || !c->op) {
     Mat next;
-    TRYRANKS(ranksOperator(*p, K, T, c->op, &next), "matrix K + T");
+    TRYRANKS(ranksOperator(*p, *k, T, c->op, &next), "matrix K + T");
     TRYRANKS(MatDestroy(&c->op), "matrix K + T");
     c->op = next;
   }
@@ -1558,8 +1557,8 @@ static void init() {
              new OneOperator6_<long, long, string *, string *, KN<long> *, KN<long> *, KN<double> *>(ranksCreate));
   Global.Add("petscRanksAbort", "(", new OneOperator1_<long, long>(ranksAbort));
   Global.Add("petscRanksSolve", "(",
-             new OneOperator7_<long, long, Matrice_Creuse<double> *, Matrice_Creuse<double> *, KN<double> *, KN<double> *,
-                                double, long>(ranksSolve));
+             new OneOperator7_<long, long, long, Matrice_Creuse<double> *, KN<double> *, KN<double> *, double,
+                                long>(ranksSolve));
   ff_atend(finish);
 }
 

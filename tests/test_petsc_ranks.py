@@ -6,7 +6,6 @@ string and a PETSc error inside the Krylov solve are one line, their exit code a
 
 from __future__ import annotations
 
-import os
 from pathlib import Path
 
 import numpy as np
@@ -21,6 +20,7 @@ from harness.run.run import run_level
 from harness.scene import petsc_options
 from harness.scene.scene import load_scene
 from test_parallel import mpi_missing
+from test_pipeline import freefem_processes_under
 
 CASES = Path(__file__).parents[1] / "cases"
 # The issue's bound. Measured: 3e-13 at worst (2D n = 32 on 4 ranks); the distributed matrix adds
@@ -87,21 +87,6 @@ def test_the_default_on_ranks_is_the_distributed_multigrid_without_the_script_co
     assert one.solver_options == petsc_options.MUMPS_LU
 
 
-def freefem_processes_under(root: Path) -> list[int]:
-    """FreeFEM processes whose command line names a path under `root`."""
-    found = []
-    for entry in Path("/proc").iterdir():
-        if not entry.name.isdigit():
-            continue
-        try:
-            argv = (entry / "cmdline").read_bytes().split(b"\0")
-        except OSError:
-            continue
-        if argv and b"FreeFem++" in argv[0] and any(str(root).encode() in a for a in argv):
-            found.append(int(entry.name))
-    return found
-
-
 @pytest.mark.parametrize("options, code, words", [
     ("-pc_type nonsense", ExitCode.INPUT, ["PETSc rejected run.petsc_options", "nonsense"]),
     ("-ksp_typo 3", ExitCode.INPUT, ["PETSc rejected run.petsc_options", "-ksp_typo", "never used"]),
@@ -118,5 +103,4 @@ def test_a_petsc_fault_on_ranks_is_one_line_its_exit_code_and_no_process_left(ca
     assert status == code
     assert len(err) == 1 and err[0].startswith("error: ") and all(w in err[0] for w in words), err
     assert not freefem_processes_under(results), "a rank outlived the failed run"
-    assert not list((results / "paper").glob(".tmp-*"))
-    assert os.path.isdir(results / "paper")
+    assert (results / "paper").is_dir() and not list((results / "paper").glob(".tmp-*"))

@@ -51,9 +51,9 @@ class LinearSolver:
             if plugin_path is None:
                 raise ValueError(f"linear_solver {self.name!r} needs the built plugin's path")
             if ranks:
-                # PETSc across the ranks (freefem/petsc_ranks.idp); the bulk matrix stays FreeFEM's,
-                # each rank's subdomain's, which the plugin adds into the distributed one.
-                return [f'load "{plugin_path.with_suffix("")}"', "macro PETSCRANKS 1 //",
+                # PETSc across the ranks (freefem/petsc_ranks.idp): each rank's bulk matrix goes to the
+                # plugin as on one rank (freefem/bulk.idp), which adds it into the distributed one.
+                return [f'load "{plugin_path.with_suffix("")}"', "macro PETSCSOLVER 1 //", "macro PETSCRANKS 1 //",
                         "macro LINEARSOLVER UMFPACK //", f'string linearSolverName = "{self.reported}";']
             # The Newton system goes to PETSc (freefem/petsc_linear_solver.idp); the few direct
             # solves left (a staggered theta, the pressed start) to FreeFEM's UMFPACK: a MUMPS
