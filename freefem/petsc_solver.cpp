@@ -1252,10 +1252,9 @@ long ranksCreate(long const &part, string *const &options, string *const &names,
 // The distributed operator from this rank's K and T: K its subdomain's bulk matrix, held by the
 // plugin as on one rank (Bulk: 12 bytes an entry, FreeFEM's own matrix about 40) and never
 // changed on ranks, T its contact tangent; both are added here (FreeFEM's K + T took 22 of a 3D
-// n = 8 run's 32 s on 2 ranks). `like`: an earlier operator whose pattern serves as the
-// preallocation (T may still add entries); without one, a first pass through PETSc's
-// preallocator counts them.
-PetscErrorCode ranksOperator(const RanksPart &p, Bulk &bulk, Matrice_Creuse<double> *T, Mat like, Mat *out) {
+// n = 8 run's 32 s on 2 ranks). *out: the last operator, refilled in place (its pattern kept; T
+// may still add entries), or null: a new one, preallocated exactly from the owned rows.
+PetscErrorCode ranksOperator(const RanksPart &p, Bulk &bulk, Matrice_Creuse<double> *T, Mat *out) {
   MatriceMorse<double> *t = T->A ? dynamic_cast<MatriceMorse<double> *>(&*T->A) : nullptr;
   if (T->A && (!t || t->half || t->n != p.local || t->m != p.local)) {
     lastMessage = "the contact tangent is not a full sparse matrix of the subdomain's " + std::to_string(p.local) + " dofs";
@@ -1297,22 +1296,27 @@ PetscErrorCode ranksOperator(const RanksPart &p, Bulk &bulk, Matrice_Creuse<doub
     PetscCall(MatAssemblyBegin(m, MAT_FINAL_ASSEMBLY));
     return MatAssemblyEnd(m, MAT_FINAL_ASSEMBLY);
   };
-  if (like) {
-    PetscCall(MatDuplicate(like, MAT_DO_NOT_COPY_VALUES, out));
+  if (*out) {
+    PetscCall(MatZeroEntries(*out));
   } else {
-    Mat counter;
-    PetscCall(MatCreate(PETSC_COMM_WORLD, &counter));
-    PetscCall(MatSetType(counter, MATPREALLOCATOR));
-    PetscCall(MatSetSizes(counter, p.owned, p.owned, p.size, p.size));
-    PetscCall(MatSetUp(counter));
-    PetscCall(add(counter));
+    // An owned row is whole on its owner (D != 0 there): its columns there are the global row's,
+    // each in the diagonal block when this rank owns its dof too. T's are counted as if apart
+    // from K's (a few Gamma_3 rows slightly over-allocated).
+    std::vector<PetscInt> inside(p.owned, 0), outside(p.owned, 0);
+    for (PetscInt i = 0; i < p.local; ++i) {
+      if (!p.own[i]) continue;
+      PetscInt row = p.index[i] - p.first;
+      if (p.dirichlet[i]) { inside[row] = 1; continue; }
+      for (PetscInt q = k.ia[i]; q < k.ia[i + 1]; ++q) ++(p.own[k.ja[q]] ? inside[row] : outside[row]);
+      if (t) for (auto q = t->p[i]; q < t->p[i + 1]; ++q) ++(p.own[t->j[q]] ? inside[row] : outside[row]);
+    }
     PetscCall(MatCreate(PETSC_COMM_WORLD, out));
     PetscCall(MatSetType(*out, MATAIJ));
     PetscCall(MatSetSizes(*out, p.owned, p.owned, p.size, p.size));
-    PetscCall(MatPreallocatorPreallocate(counter, PETSC_TRUE, *out));
-    PetscCall(MatDestroy(&counter));
+    PetscCall(MatSeqAIJSetPreallocation(*out, 0, inside.data()));
+    PetscCall(MatMPIAIJSetPreallocation(*out, 0, inside.data(), 0, outside.data()));
+    PetscCall(MatSetOption(*out, MAT_NEW_NONZERO_ALLOCATION_ERR, PETSC_FALSE));
   }
-  PetscCall(MatSetOption(*out, MAT_NEW_NONZERO_ALLOCATION_ERR, PETSC_FALSE));
   PetscCall(add(*out));
   return closeRows(&k);
 }
@@ -1421,12 +1425,13 @@ long ranksSolve(long const &id, long const &bulk, Matrice_Creuse<double> *const 
     return failRanks(PETSC_ERR_ARG_SIZ, "solve");
   }
   double c0 = cpu();
-  if (reuse < 2 || !c->op) {
-    Mat next;
-    TRYRANKS(ranksOperator(*p, *k, T, c->op, &next), "matrix K + T");
-    TRYRANKS(MatDestroy(&c->op), "matrix K + T");
-    c->op = next;
-  }
+  // One distributed matrix, the operator and the preconditioner's, refilled in place: a second
+  // would cost a copy of K on every rank. A reused multigrid keeps its Galerkin coarse operators
+  // (PCMG's set-up is skipped); the inner solvers built on this matrix itself (the finest
+  // smoother's block-Jacobi ILU, a one-level multigrid's LU) see it change and set up again at
+  // their next solve (3D n = 8 on 2 ranks: 1 Krylov iteration a step where the stale LU of a
+  // second matrix took 10-13).
+  if (reuse < 2 || !c->op) TRYRANKS(ranksOperator(*p, *k, T, &c->op), "matrix K + T");
   c->cpuOperator = cpu() - c0;
   c->peakOperator = peakMb();
   bool rebuild = !reuse || !c->pre;
