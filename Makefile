@@ -102,13 +102,16 @@ modules-doc: $(STAMP)
 	$(PY) scripts/modules_doc.py
 
 # Adaptive refinement driven by the error estimate (docs/adaptivity.md): the paper's scene and
-# the strip actuator, each against its uniform levels, and the singular known answer on the
-# L-shaped domain against its exact field, into results/adapt/<case>/.
+# the strip actuator, each against its uniform levels, and the singular known answers on the
+# L-shaped domain (temperature, potential, displacement) against their exact fields, into
+# results/adapt/<case>/.
 .PHONY: adapt
 adapt: $(STAMP) freefem
 	$(PY) -m harness adapt cases/paper.toml --steps 40 --max-dofs 30000
 	$(PY) -m harness adapt cases/strip_actuator.toml --steps 40 --max-dofs 30000
 	$(PY) -m harness adapt cases/mms/lshape.toml --steps 40 --max-dofs 40000
+	$(PY) -m harness adapt cases/mms/lshape_phi.toml --steps 40 --max-dofs 40000
+	$(PY) -m harness adapt cases/mms/lshape_u.toml --steps 40 --max-dofs 40000
 
 # Verification beyond self-convergence (issue 6): true errors of the manufactured cases
 # (cases/mms/, h = 1/4 ... 1/32) and the three-grid GCI of the paper's scene (its runs are

@@ -22,6 +22,11 @@
 //   int its = petscSolveBulk(id, k, T, b, x, rtol, reuse);  // x = (K + T)^-1 b
 //   petscBulkDestroy(k);
 //
+// or, for P1 fields, K in one pass by an element kernel whose blocks the script reads off the forms:
+//
+//   petscBulkKernelBlock(k, [rowOffset, rowComponents, colOffset, colComponents, dim], D); ...
+//   petscBulkKernel(k, Th);                              // then petscBulkAssemble(k) as above
+//
 // The unknowns are FreeFEM's Newton vector: the fields concatenated in order, a vector
 // field's components interleaved per node. Each field becomes an index set named after
 // it, so that "-pc_type fieldsplit -fieldsplit_u_pc_type gamg" addresses the displacement;
@@ -48,6 +53,7 @@
 #include <vector>
 #include "ff++.hpp"
 #include "AFunction_ext.hpp"
+#include "lgfem.hpp"
 
 namespace {
 
@@ -848,6 +854,214 @@ long bulkDestroy(long const &id) {
   return 0;
 }
 
+// ---- K by element kernel (petscBulkKernel*): P1 fields, one-point rule, one pass ----
+// K's blocks are bilinear forms (freefem/forms.idp) whose integrands, for P1 fields and
+// the centroid rule that integrates them exactly (forms.idp's bulkQF), read only each
+// field component's value and gradient at the element's centroid. Such a block is one
+// constant matrix D over those channels (value, d/dx_1 .. d/dx_d of each component): the
+// element matrix is |T| Phi_i^T D Phi_j, Phi_i = (1/(d+1), grad lambda_i) for vertex i.
+// The script reads D off the forms themselves, by assembling each block varf on a single
+// element and probing it with linear functions (freefem/bulk_kernel.idp), so the physics
+// stays in the forms; this kernel only does the element loop FreeFEM would interpret.
+// tests/test_lean_bulk.py: the K built here equals the block-assembled one entry by entry.
+struct KernelBlock {
+  PetscInt rowOffset = 0, colOffset = 0;   // the fields' first rows and columns in K
+  int rowComponents = 1, colComponents = 1, dim = 0;
+  std::vector<double> d;                   // (rowComponents (dim+1)) x (colComponents (dim+1)), row-major
+};
+std::vector<std::vector<KernelBlock>> kernelBlocks;   // by bulk matrix id
+
+long bulkKernelBlock(long const &id, KN<long> *const &layout, KN<double> *const &d) {
+  Bulk *b = bulkOf(id);
+  if (!b || b->J || layout->N() != 5) {
+    if (b) lastMessage = "a kernel block needs [row offset, row components, column offset, column components, dimension]";
+    return fail(PETSC_ERR_ARG_WRONG, "bulk kernel block");
+  }
+  KernelBlock k;
+  k.rowOffset = (*layout)[0]; k.rowComponents = (int)(*layout)[1];
+  k.colOffset = (*layout)[2]; k.colComponents = (int)(*layout)[3];
+  k.dim = (int)(*layout)[4];
+  long channels = k.dim + 1;
+  if (d->N() != k.rowComponents * channels * k.colComponents * channels || k.rowOffset < 0 || k.colOffset < 0) {
+    lastMessage = "a kernel block's matrix does not match its components";
+    return fail(PETSC_ERR_ARG_SIZ, "bulk kernel block");
+  }
+  k.d.assign(&(*d)[0], &(*d)[0] + d->N());
+  if ((long)kernelBlocks.size() <= id) kernelBlocks.resize(id + 1);
+  kernelBlocks[id].push_back(std::move(k));
+  return 0;
+}
+
+// The vertex neighbours of each vertex (itself included), sorted: the nodal pattern a P1
+// varf assembles (every pair of vertices sharing an element, zeros too).
+template <class M>
+void vertexNeighbours(const M &th, std::vector<PetscInt> *ptr, std::vector<PetscInt> *adj) {
+  const int nve = M::Rd::d + 1;   // simplices
+  std::vector<std::vector<PetscInt>> rows(th.nv);
+  for (int k = 0; k < th.nt; ++k)
+    for (int i = 0; i < nve; ++i)
+      for (int j = 0; j < nve; ++j) rows[th(k, i)].push_back(th(k, j));
+  ptr->assign(th.nv + 1, 0);
+  for (int v = 0; v < th.nv; ++v) {
+    std::sort(rows[v].begin(), rows[v].end());
+    rows[v].erase(std::unique(rows[v].begin(), rows[v].end()), rows[v].end());
+    (*ptr)[v + 1] = (*ptr)[v] + (PetscInt)rows[v].size();
+  }
+  adj->resize((*ptr)[th.nv]);
+  for (int v = 0; v < th.nv; ++v) {
+    std::copy(rows[v].begin(), rows[v].end(), adj->begin() + (*ptr)[v]);
+    std::vector<PetscInt>().swap(rows[v]);
+  }
+}
+
+// Gradients of the barycentric coordinates of element k (row i: grad lambda_i) and its measure.
+template <class M>
+double elementGradients(const M &th, int k, double grad[4][3]) {
+  const int dim = M::Rd::d;
+  const double *p0 = &th(th(k, 0)).x;
+  double jac[3][3], inv[3][3];
+  for (int c = 0; c < dim; ++c)
+    for (int r = 0; r < dim; ++r) jac[r][c] = (&th(th(k, c + 1)).x)[r] - p0[r];
+  double det;
+  if (dim == 2) {
+    det = jac[0][0] * jac[1][1] - jac[0][1] * jac[1][0];
+    inv[0][0] = jac[1][1] / det; inv[0][1] = -jac[0][1] / det;
+    inv[1][0] = -jac[1][0] / det; inv[1][1] = jac[0][0] / det;
+  } else {
+    det = jac[0][0] * (jac[1][1] * jac[2][2] - jac[1][2] * jac[2][1])
+        - jac[0][1] * (jac[1][0] * jac[2][2] - jac[1][2] * jac[2][0])
+        + jac[0][2] * (jac[1][0] * jac[2][1] - jac[1][1] * jac[2][0]);
+    for (int r = 0; r < 3; ++r)
+      for (int c = 0; c < 3; ++c) {
+        // the cofactor of (c, r) over det: the inverse's (r, c)
+        int r1 = (c + 1) % 3, r2 = (c + 2) % 3, c1 = (r + 1) % 3, c2 = (r + 2) % 3;
+        inv[r][c] = (jac[r1][c1] * jac[r2][c2] - jac[r1][c2] * jac[r2][c1]) / det;
+      }
+  }
+  // lambda_{i+1} = row i of inv times (x - p0); lambda_0 = 1 - the others.
+  for (int c = 0; c < dim; ++c) {
+    grad[0][c] = 0;
+    for (int i = 0; i < dim; ++i) { grad[i + 1][c] = inv[i][c]; grad[0][c] -= inv[i][c]; }
+  }
+  return std::abs(det) / (dim == 2 ? 2.0 : 6.0);
+}
+
+// J = K from the registered blocks over the mesh: the pattern first (exactly the block
+// varfs'), then each element's matrices added in place into J's values.
+template <class M>
+PetscErrorCode kernelAssemble(Bulk &b, const std::vector<KernelBlock> &blocks, const M &th) {
+  const int dim = M::Rd::d, nve = dim + 1, ch = dim + 1;
+  std::vector<PetscInt> ptr, adj;
+  vertexNeighbours(th, &ptr, &adj);
+  // Per row field (its offset), the blocks of that row in column order.
+  std::vector<const KernelBlock *> order;
+  for (const KernelBlock &k : blocks) order.push_back(&k);
+  std::stable_sort(order.begin(), order.end(), [](const KernelBlock *x, const KernelBlock *y) {
+    return x->rowOffset != y->rowOffset ? x->rowOffset < y->rowOffset : x->colOffset < y->colOffset; });
+  for (const KernelBlock *k : order)
+    if (k->dim != dim) {
+      lastMessage = "a kernel block was read off a mesh of another dimension";
+      return PETSC_ERR_ARG_WRONG;
+    }
+  for (const KernelBlock *k : order)
+    if (k->rowOffset + (PetscInt)th.nv * k->rowComponents > b.n || k->colOffset + (PetscInt)th.nv * k->colComponents > b.n) {
+      lastMessage = "a kernel block reaches past K: the mesh is not the fields' mesh";
+      return PETSC_ERR_ARG_SIZ;
+    }
+  std::vector<PetscInt> counts(b.n, 0);
+  for (const KernelBlock *k : order)
+    for (int v = 0; v < th.nv; ++v)
+      for (int c = 0; c < k->rowComponents; ++c)
+        counts[k->rowOffset + (PetscInt)v * k->rowComponents + c] += (ptr[v + 1] - ptr[v]) * k->colComponents;
+  PetscCall(MatCreate(PETSC_COMM_SELF, &b.J));
+  PetscCall(MatSetSizes(b.J, b.n, b.n, b.n, b.n));
+  PetscCall(MatSetType(b.J, MATSEQAIJ));
+  PetscCall(MatSeqAIJSetPreallocation(b.J, 0, counts.data()));
+  PetscCall(MatSetOption(b.J, MAT_NEW_NONZERO_ALLOCATION_ERR, PETSC_TRUE));
+  {
+    std::vector<PetscInt> cols;
+    std::vector<PetscScalar> zeros;
+    for (size_t first = 0; first < order.size();) {   // the blocks of one row field
+      size_t last = first;
+      while (last < order.size() && order[last]->rowOffset == order[first]->rowOffset) ++last;
+      for (int v = 0; v < th.nv; ++v) {
+        cols.clear();
+        for (size_t q = first; q < last; ++q)
+          for (PetscInt p = ptr[v]; p < ptr[v + 1]; ++p)
+            for (int c = 0; c < order[q]->colComponents; ++c)
+              cols.push_back(order[q]->colOffset + adj[p] * order[q]->colComponents + c);
+        zeros.assign(cols.size(), 0.0);
+        for (int c = 0; c < order[first]->rowComponents; ++c) {
+          PetscInt row = order[first]->rowOffset + (PetscInt)v * order[first]->rowComponents + c;
+          PetscCall(MatSetValues(b.J, 1, &row, (PetscInt)cols.size(), cols.data(), zeros.data(), INSERT_VALUES));
+        }
+      }
+      first = last;
+    }
+  }
+  PetscCall(MatAssemblyBegin(b.J, MAT_FINAL_ASSEMBLY));
+  PetscCall(MatAssemblyEnd(b.J, MAT_FINAL_ASSEMBLY));
+  // Where block q starts in a row of vertex v: the row's start plus the earlier blocks of its field.
+  std::vector<PetscInt> before(order.size(), 0);   // columns per neighbour of the earlier blocks
+  for (size_t q = 1; q < order.size(); ++q)
+    before[q] = order[q]->rowOffset == order[q - 1]->rowOffset ? before[q - 1] + order[q - 1]->colComponents : 0;
+  Rows r;
+  PetscCall(openRows(b.J, &r));
+  double grad[4][3], phi[4][4], left[3 * 4];
+  PetscInt rank[4][4];
+  for (int k = 0; k < th.nt; ++k) {
+    double measure = elementGradients(th, k, grad);
+    int vert[4];
+    for (int i = 0; i < nve; ++i) {
+      vert[i] = th(k, i);
+      phi[i][0] = 1.0 / nve;
+      for (int c = 0; c < dim; ++c) phi[i][c + 1] = grad[i][c];
+    }
+    for (int i = 0; i < nve; ++i)
+      for (int j = 0; j < nve; ++j)
+        rank[i][j] = std::lower_bound(adj.begin() + ptr[vert[i]], adj.begin() + ptr[vert[i] + 1], (PetscInt)vert[j]) -
+                     (adj.begin() + ptr[vert[i]]);
+    for (size_t q = 0; q < order.size(); ++q) {
+      const KernelBlock &kb = *order[q];
+      const int nc = kb.colComponents, width = nc * ch;
+      for (int i = 0; i < nve; ++i) {
+        const PetscInt neighbours = ptr[vert[i] + 1] - ptr[vert[i]];
+        for (int cr = 0; cr < kb.rowComponents; ++cr) {
+          // left = |T| Phi_i^T D, the row of component cr of vertex i, over the column channels
+          for (int cb = 0; cb < width; ++cb) {
+            double sum = 0;
+            for (int a = 0; a < ch; ++a) sum += phi[i][a] * kb.d[(size_t)(cr * ch + a) * width + cb];
+            left[cb] = measure * sum;
+          }
+          PetscInt row = kb.rowOffset + (PetscInt)vert[i] * kb.rowComponents + cr;
+          PetscScalar *values = r.a + r.ia[row] + before[q] * neighbours;
+          for (int j = 0; j < nve; ++j)
+            for (int cc = 0; cc < nc; ++cc) {
+              double sum = 0;
+              for (int a = 0; a < ch; ++a) sum += left[cc * ch + a] * phi[j][a];
+              values[rank[i][j] * nc + cc] += sum;
+            }
+        }
+      }
+    }
+  }
+  PetscCall(closeRows(&r));
+  return 0;
+}
+
+template <class M>
+long bulkKernel(long const &id, const M *const &th) {
+  Bulk *b = bulkOf(id);
+  if (!b || b->J || !b->chunks.empty() || id >= (long)kernelBlocks.size() || kernelBlocks[id].empty() || !th) {
+    if (b) lastMessage = "the kernel needs its blocks, and a bulk matrix that has no block yet";
+    return fail(PETSC_ERR_ARG_WRONGSTATE, "bulk kernel");
+  }
+  PetscErrorCode ierr = kernelAssemble(*b, kernelBlocks[id], *th);
+  std::vector<KernelBlock>().swap(kernelBlocks[id]);
+  if (ierr) return fail(ierr, "bulk kernel");
+  return 0;
+}
+
 long krylov(Context *c, KN<double> *b, KN<double> *x, double rtol, long reuse);
 
 // x = A^-1 b to ||b - A x|| <= rtol ||b||, from x = 0.
@@ -1554,6 +1768,9 @@ static void init() {
   Global.Add("petscBulkDirichlet", "(", new OneOperator2_<long, long, KN<double> *>(bulkDirichlet));
   Global.Add("petscBulkWrite", "(", new OneOperator2_<long, long, string *>(bulkWrite));
   Global.Add("petscBulkDestroy", "(", new OneOperator1_<long, long>(bulkDestroy));
+  Global.Add("petscBulkKernelBlock", "(", new OneOperator3_<long, long, KN<long> *, KN<double> *>(bulkKernelBlock));
+  Global.Add("petscBulkKernel", "(", new OneOperator2_<long, long, pmesh>(bulkKernel<Mesh>));
+  Global.Add("petscBulkKernel", "(", new OneOperator2_<long, long, pmesh3>(bulkKernel<Mesh3>));
   Global.Add("petscStats", "(", new OneOperator2_<long, long, KN<double> *>(stats));
   Global.Add("petscAddLevel", "(", new OneOperator2_<long, long, Matrice_Creuse<double> *>(addLevel));
   Global.Add("petscDestroy", "(", new OneOperator1_<long, long>(destroy));

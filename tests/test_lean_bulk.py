@@ -1,7 +1,9 @@
-"""The bulk matrix K two ways (freefem/bulk.idp): FreeFEM composing it from its block varfs
-(every direct solver), and the PETSc plugin receiving one block at a time, each freed
-before the next is assembled (run.linear_solver = "petsc", freefem/petsc_solver.cpp). Both
-are written by the scripts' -debug.bulk_matrix option; they must hold the same entries, the
+"""The bulk matrix K three ways (freefem/bulk.idp): FreeFEM composing it from its block varfs
+(every direct solver); the PETSc plugin receiving one block at a time, each freed before
+the next is assembled (run.linear_solver = "petsc" with the script's -debug.bulk_blocks 1);
+and the plugin's element kernel, K in one pass from each block's matrix read off its form
+(freefem/bulk_kernel.idp, the PETSc path's default for P1 fields of one material). All are
+written by the scripts' -debug.bulk_matrix option; they must hold the same entries and the
 same values, on a coarse 2D and 3D mesh with every effect on and on a scene whose theta is
 solved apart (its blocks stay FreeFEM's)."""
 
@@ -19,16 +21,18 @@ from harness.run import petsc_plugin
 from harness.run.plan import invocation
 from harness.run.run import make_meshes
 from harness.scene.scene import load_scene
+from harness.scene.unknowns import Unknowns
 
 CASES = Path(__file__).parents[1] / "cases"
 
 
-def bulk_matrix(tmp: Path, case: str, n: int, solver: str) -> tuple[tuple[int, int], np.ndarray]:
-    """K as FreeFEM's sparse-matrix text gives it: its size and (row, column, value) rows."""
+def bulk_matrix(tmp: Path, case: str, n: int, solver: str, by_blocks: bool = False) -> tuple[tuple[int, int], np.ndarray]:
+    """K as FreeFEM's sparse-matrix text gives it: its size and (row, column, value) rows.
+    `by_blocks`: the plugin's K from the block varfs, not from its element kernel."""
     scene = load_scene(CASES / f"{case}.toml", [f'run.linear_solver="{solver}"', 'scene.initial_guess="zero"'])
     layout = Layout(results=tmp / "results")
     mesh = build_mesh(scene.geometry, n, layout.meshes_dir(scene.name)).path
-    work = tmp / solver
+    work = tmp / (solver + ("-blocks" if by_blocks else ""))
     work.mkdir()
     run = invocation(scene, mesh, n, layout, "zero", None)
     make_meshes(scene, run)
@@ -36,7 +40,8 @@ def bulk_matrix(tmp: Path, case: str, n: int, solver: str) -> tuple[tuple[int, i
         petsc_plugin.library()
     (work / "main.edp").write_text(run.script)
     dump = work / "K.txt"
-    outcome = freefem.invoke(freefem.command(work / "main.edp", [*run.bound(work), "-debug.bulk_matrix", str(dump)]),
+    outcome = freefem.invoke(freefem.command(work / "main.edp", [*run.bound(work), "-debug.bulk_matrix", str(dump),
+                                                                   "-debug.bulk_blocks", "1" if by_blocks else "0"]),
                              work, 300)
     assert outcome.returncode == 0, (work / "stdout.txt").read_text()[-2000:]
     rows = [line.split() for line in dump.read_text().splitlines() if not line.startswith("#")]
@@ -54,7 +59,7 @@ def sorted_entries(entries: np.ndarray) -> np.ndarray:
 @pytest.mark.parametrize("case,n", [("paper", 4), ("paper3d", 2), ("heated", 4)])
 def test_the_plugins_k_is_the_block_assembled_k_entry_by_entry(tmp_path, case, n):
     size, freefems = bulk_matrix(tmp_path, case, n, "mumps")
-    size_petsc, petscs = bulk_matrix(tmp_path, case, n, "petsc")
+    size_petsc, petscs = bulk_matrix(tmp_path, case, n, "petsc", by_blocks=True)
     assert size == size_petsc
     a, b = sorted_entries(freefems), sorted_entries(petscs)
     # The same entries: the plugin keeps every entry FreeFEM assembled, zeros too.
@@ -65,3 +70,50 @@ def test_the_plugins_k_is_the_block_assembled_k_entry_by_entry(tmp_path, case, n
     assert np.abs(a[:, 2] - b[:, 2]).max() <= 1e-15 * np.abs(a[:, 2]).max()
     # Every block is in: rows of each field and couplings between them, not one block alone.
     assert len(np.unique(a[:, 0])) == size[0]
+
+
+def field_offsets(case: str, size: int) -> np.ndarray:
+    """The first row of each field of the Newton vector (harness/scene/unknowns.py)."""
+    scene = load_scene(CASES / f"{case}.toml")
+    counts = [scene.dimension if f.name == "u" else 1 for f in Unknowns(tuple(scene.effects), scene.dimension).newton]
+    nodes, rest = divmod(size, sum(counts))
+    assert rest == 0
+    return np.cumsum([0, *counts[:-1]]) * nodes
+
+
+def block_of(entries: np.ndarray, offsets: np.ndarray) -> np.ndarray:
+    """Each entry's block, numbered from its row's and its column's field."""
+    rows = np.searchsorted(offsets, entries[:, 0], side="right")
+    cols = np.searchsorted(offsets, entries[:, 1], side="right")
+    return rows * len(offsets) + cols
+
+
+@pytest.mark.parametrize("case,n", [("paper", 4), ("paper3d", 2), ("heated", 4)])
+def test_the_element_kernels_k_is_the_block_assembled_k_entry_by_entry(tmp_path, case, n):
+    """The one-pass K (the plugin's element kernel, each block's matrix read off its form)
+    against FreeFEM's K composed from its block varfs, every effect of the scene on."""
+    size, freefems = bulk_matrix(tmp_path, case, n, "mumps")
+    size_kernel, kernels = bulk_matrix(tmp_path, case, n, "petsc")
+    assert size == size_kernel
+    a, b = sorted_entries(freefems), sorted_entries(kernels)
+    # The same entries, zeros of the element matrices too: the kernel's pattern is every
+    # pair of vertices sharing an element, in every component pair of every block, as a varf's.
+    assert a.shape == b.shape
+    assert np.array_equal(a[:, :2], b[:, :2])
+    # The same values to round-off, block by block (the fields' scales differ): the kernel sums
+    # the same products in another order, |T| Phi_i^T D Phi_j against the varf's terms one by
+    # one, so an entry may differ by a few units in the last place of its block's largest
+    # (measured: 5e-16 and 8e-16 relative in 3D and 2D; an entry that cancels to 0 in one is
+    # 1e-11 of 3e4 in the other); 1e-14 leaves room for that and fails any wrong coefficient.
+    offsets = field_offsets(case, size[0])
+    assert len(offsets) >= 2
+    block = block_of(a, offsets)
+    for k in np.unique(block):
+        here = block == k
+        scale = np.abs(a[here, 2]).max()
+        if scale == 0:
+            assert np.abs(b[here, 2]).max() == 0
+            continue
+        assert np.abs(a[here, 2] - b[here, 2]).max() <= 1e-14 * scale, f"block {k}"
+    # Not a K of zeros: the largest entries are the elastic stiffness's.
+    assert np.abs(b[:, 2]).max() > 0

@@ -9,6 +9,7 @@ import json
 import math
 
 import numpy as np
+import pandas as pd
 import pytest
 
 from harness.study import hard_cases as stress
@@ -18,7 +19,10 @@ from harness.core.errors import RunError
 from harness.run.record import RunRecord, read_run_json
 from harness.run.run import read_record
 from harness.measure.fields import read_fields
+from harness.core import freefem
 from harness.core.layout import Layout
+from harness.mesh.mesh import build_mesh
+from harness.run.plan import invocation
 from harness.scene.scene import load_scene
 
 CASES = sorted(stress.HARD.glob("*.toml"))
@@ -188,9 +192,13 @@ def test_case_converges_from_zero(tmp_path, case):
 # active-set revisit test of freefem/newton.idp: friction_large_shear 12 / 23, no_piezo
 # 23 / 15, gap_partial 11 / 17 at n = 2 / 8; after it 9 / 12, 7 / 12, 11 / 17; with the
 # restart below alphaMin and the move onto the foundation 6 / 7, 6 / 5, 6 / 8, and
-# friction_stick (the zone-end flips, unchanged) 4 / 7.
+# friction_stick (the zone-end flips, unchanged) 4 / 7. The other cases whose zone ends flip
+# (docs/hard-cases.md, "What is left"), each the worst of its kind at n = 16: friction_free and
+# friction_partial_slip (4 / 7, as friction_stick: free, partial and full stick), gmsh_wedge
+# (a gmsh body on an inclined contact, 3 / 5).
 COLD_START_BOUND = 8
-COLD_START_CASES = ("friction_large_shear", "no_piezo", "gap_partial", "friction_stick")
+COLD_START_CASES = ("friction_large_shear", "no_piezo", "gap_partial", "friction_stick", "friction_free",
+                    "friction_partial_slip", "gmsh_wedge")
 
 
 @pytest.mark.parametrize("case,n", [(c, n) for c in COLD_START_CASES for n in (2, 8)])
@@ -202,6 +210,36 @@ def test_cold_start_iterations_of_the_worst_cases(tmp_path, case, n):
     # The branch of today's cold start: pressed after the restart, or barely touching.
     assert (record.restarted_at > 0) == (case in PRESSED_FROM_ZERO), record.restarted_at
     assert record.newton_iterations <= COLD_START_BOUND, (record.newton_iterations, record.restarted_at)
+
+
+def test_the_contact_history_records_gamma3_after_every_step_as_run_json_counts_it(tmp_path):
+    """freefem/newton.idp's -debug.contact_history (the per-iteration record behind
+    docs/hard-cases.md's diagnosis of the zone's ends): one row per Gamma_3 node at the start
+    and after every step, whose closed nodes (s > 0) are run.json's active_nodes step by step,
+    and whose last closed measure at the quadrature points is run.json's active_measure; the
+    record leaves the solve alone (the same iterations as the harness's run)."""
+    scene = load_scene(stress.HARD / "friction_stick.toml", ['scene.initial_guess="zero"'])
+    layout = Layout(results=tmp_path / "results")
+    n = 8
+    plain = stress.run_case(stress.HARD / "friction_stick.toml", layout, levels=[n], scene=scene).last.record
+    mesh = build_mesh(scene.geometry, n, layout.meshes_dir(scene.name)).path
+    run = invocation(scene, mesh, n, layout, "zero", None)
+    work = tmp_path / "history"
+    work.mkdir()
+    (work / "main.edp").write_text(run.script)
+    history = work / "contact_history.csv"
+    outcome = freefem.invoke(freefem.command(work / "main.edp", [*run.bound(work), "-debug.contact_history", str(history)]),
+                             work, 120)
+    assert outcome.returncode == 0, outcome
+    record = json.loads((work / "run.json").read_text())
+    assert record["newton_iterations"] == plain.newton_iterations
+    table = pd.read_csv(history)
+    steps = table.groupby("step")
+    assert list(steps.groups) == list(range(record["newton_iterations"] + 1))
+    assert (steps.size() == n * 2 + 1).all()   # Gamma_3 = [1, 3] x {0}: 2n + 1 nodes
+    assert list(steps["s"].apply(lambda s: int((s > 0).sum()))) == record["active_nodes"]
+    # The same integral as checks.idp's, of the same state: equal but for its last digit.
+    assert steps["closed_measure"].last().iloc[-1] == pytest.approx(record["active_measure"], rel=1e-14)
 
 
 def test_cold_start_counts_do_not_grow_from_n_2_to_8_for_the_restarting_and_gap_cases(tmp_path):

@@ -23,7 +23,7 @@ from harness.core.faults import disk_full, fault
 from harness.core.guards import mesh_file_bytes, need_disk
 from harness.mesh import box_mesh, gmsh_mesh, rectangle_mesh
 from harness.mesh.mesh_check import MeshSummary, check_arrays
-from harness.mesh.msh import AS_GMSH, AS_MESHIO, MshStyle, write_msh
+from harness.mesh.msh import AS_GMSH, AS_GRADED, AS_MESHIO, MshStyle, msh_text, write_msh
 from harness.mesh.simplex import SimplexMesh, quality, quality_warning, role_measures
 from harness.scene.blocks import block_labels, check_on_grid
 from harness.scene.box import Box
@@ -175,21 +175,14 @@ def graded_coordinate(t: np.ndarray, focus: Sequence[float], power: float) -> np
     return out
 
 
-def graded_msh(uniform: Path, target: Path, width: float, focus_x: Sequence[float], power: float) -> None:
-    """Copy a structured MSH 2.2 mesh with its nodes moved by graded_coordinate in x
-    (towards focus_x) and in y (towards y = 0). The topology, labels and orientation (both
-    maps are increasing) are unchanged; the family is no longer nested."""
-    lines = uniform.read_text().splitlines()
-    start = lines.index("$Nodes") + 2
-    count = int(lines[start - 1])
-    rows = [line.split() for line in lines[start:start + count]]
-    xy = np.array([[float(r[1]), float(r[2])] for r in rows])
-    gx = graded_coordinate(np.clip(xy[:, 0], 0, width), focus_x, power)
-    gy = graded_coordinate(xy[:, 1], [0.0], power)
-    for i, r in enumerate(rows):
-        lines[start + i] = f"{r[0]} {float(gx[i])!r} {float(gy[i])!r} {r[3]}"
-    target.parent.mkdir(parents=True, exist_ok=True)
-    write_atomic(target, "\n".join(lines) + "\n")
+def graded_level(level: SimplexMesh, width: float, focus_x: Sequence[float], power: float) -> SimplexMesh:
+    """`level` with its nodes moved by graded_coordinate in x (towards focus_x) and in y
+    (towards y = 0). The topology, labels and orientation (both maps are increasing) are
+    unchanged; the family is no longer nested."""
+    x, y = level.points[:, 0], level.points[:, 1]
+    moved = np.column_stack([graded_coordinate(np.clip(x, 0, width), focus_x, power),
+                             graded_coordinate(y, [0.0], power)])
+    return replace(level, points=moved)
 
 
 def contact_ends(geometry: Geometry) -> list[float]:
@@ -199,10 +192,12 @@ def contact_ends(geometry: Geometry) -> list[float]:
 
 def build_graded_mesh(geometry: Geometry, n: int, directory: Path, power: float) -> Path:
     """The level-n mesh graded towards the ends of Gamma_3 (x) and the bottom (y) with
-    `power` (graded_msh); the uniform mesh when power is 1."""
-    uniform = build_mesh(geometry, n, directory).path
+    `power` (graded_level), as graded_n<n>.msh; the uniform mesh when power is 1."""
     if power == 1.0:
-        return uniform
-    graded = uniform.with_name(f"graded_n{n}.msh")
-    graded_msh(uniform, graded, geometry.width, contact_ends(geometry), power)
-    return graded
+        return build_mesh(geometry, n, directory).path
+    level, _, _ = checked_level(geometry, n, warn=False)
+    graded = graded_level(level, geometry.width, contact_ends(geometry), power)
+    target = directory / f"graded_n{n}.msh"
+    target.parent.mkdir(parents=True, exist_ok=True)
+    write_atomic(target, msh_text(graded, AS_GRADED))
+    return target

@@ -3,11 +3,12 @@ SimplexMesh as ASCII, its facets then its cells, each with its physical tag (the
 or the cell's region label) and its elementary tag (gmsh's entity where the mesh has them,
 else the physical tag again).
 
-Two styles, because two writers made the files before this one and a run's cache key holds
-its mesh's checksum: the rectangle's levels as gmsh.write makes them (coordinates %.16g, a
-$PhysicalNames section; tests/test_mesh.py compares with gmsh itself), every other level as
-meshio 5's gmsh22 writer made them (coordinates %.16e). tests/test_mesh_bytes.py holds the
-files to their bytes.
+Three styles, because three writers made the files before this one and a run's cache key
+holds its mesh's checksum: the rectangle's levels as gmsh.write makes them (coordinates %.16g,
+a $PhysicalNames section; tests/test_mesh.py compares with gmsh itself), a graded rectangle
+as its level's file with the moved x and y in Python's shortest round-trip form (%r), every
+other level as meshio 5's gmsh22 writer made them (coordinates %.16e).
+tests/test_mesh_bytes.py holds the files to their bytes.
 
 Each section is one printf-style format over the whole array: meshio's writer formats line by
 line and took 0.36 s of the 0.43 s of the rectangle's n = 64 mesh.
@@ -29,12 +30,13 @@ ELEMENT_TYPE = {1: 1, 2: 2, 3: 4}
 
 @dataclass(frozen=True)
 class MshStyle:
-    number: str   # printf format of one coordinate
-    names: bool   # a $PhysicalNames section: each role's name, and "body"
+    coordinates: str  # printf format of a node's x, y and z
+    names: bool       # a $PhysicalNames section: each role's name, and "body"
 
 
-AS_GMSH = MshStyle("%.16g", names=True)
-AS_MESHIO = MshStyle("%.16e", names=False)
+AS_GMSH = MshStyle("%.16g %.16g %.16g", names=True)
+AS_GRADED = MshStyle("%r %r %.16g", names=True)
+AS_MESHIO = MshStyle("%.16e %.16e %.16e", names=False)
 
 
 def physical_names(mesh: SimplexMesh) -> list[tuple[int, int, str]]:
@@ -65,7 +67,7 @@ def msh_text(mesh: SimplexMesh, style: MshStyle) -> str:
         names = physical_names(mesh)
         parts += [f"$PhysicalNames\n{len(names)}\n", "".join(f'{dim} {tag} "{name}"\n' for dim, tag, name in names),
                   "$EndPhysicalNames\n"]
-    node_line = "%d" + f" {style.number}" * 3 + "\n"
+    node_line = f"%d {style.coordinates}\n"
     parts += [f"$Nodes\n{len(nodes)}\n", (node_line * len(nodes)) % tuple(nodes.ravel().tolist()), "$EndNodes\n",
               f"$Elements\n{len(mesh.facets) + len(mesh.cells)}\n",
               element_lines(1, ELEMENT_TYPE[d - 1], mesh.labels, facet_entities, mesh.facets),

@@ -40,7 +40,7 @@ class Discretisation:
     name: str
     overrides: tuple[str, ...]
     description: str
-    grading: float = 1.0  # > 1: the mesh graded towards the ends of Gamma_3 (graded_msh)
+    grading: float = 1.0  # > 1: the mesh graded towards the ends of Gamma_3 (graded_level)
     adaptive: bool = False  # the adaptive loop's steps (harness/study/adapt.py) in place of levels
 
 

@@ -285,7 +285,11 @@ SCHEMA: dict[str, dict[str, Key]] = {
 
 # A manufactured solution (harness/scene/mms.py): exact u1, u2 (u3 in 3D) [m], phi [V], theta [K]
 # as sympy expressions in x, y (and z). All blank (the default): an ordinary run with the case's [loads].
-SCHEMA["manufactured"] = {name: Key(str, "") for name in ("u1", "u2", "u3", "phi", "theta")}
+# williams: the amplitude [m] of Williams' mode-I displacement of the corner at the origin whose
+# traction-free faces are the polar angles 0 and williams_opening [rad] (harness/scene/corner.py),
+# added to u1, u2; 2D, an isotropic material.
+SCHEMA["manufactured"] = {name: Key(str, "") for name in ("u1", "u2", "u3", "phi", "theta",
+                                                          "williams", "williams_opening")}
 
 # The finite element of every field (freefem/scheme.idp's ELEMENT macro), and a reference
 # run to measure errors against inside FreeFEM (freefem/reference_error.idp, issue 5): its

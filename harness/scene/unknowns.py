@@ -122,6 +122,8 @@ class Unknowns:
                             f"if (petscBulkAdd(id, K{r}{c}, bulkOffset{r}, bulkOffset{c}) < 0) exit(exitInternal); "
                             f'tProfile = profileAdd("bulk K into PETSc", tProfile); }}' for r, c in order)
         petsc_blocks = into_petsc(blocks - kept)
+        # Or the plugin's element kernel, each block's matrix read off its form (freefem/bulk_kernel.idp).
+        kernel_blocks = " ".join(f"kernelBlock(id, {r}, {c})" for r, c in sorted(blocks - kept))
         # A staggered theta is a load on the Newton fields through their blocks K_rt.
         staggered = " ".join(f"real[int] k{r}t = K{r}t * th[]; b{r} -= k{r}t;"
                              for r, c in sorted(blocks) if c == "t" and r in newton)
@@ -157,6 +159,7 @@ class Unknowns:
             f"macro bulkBlocks() {bulk_blocks} //",
             f"macro bulkMatrix() {bulk_matrix} //",
             f"macro bulkIntoPetsc(id) {petsc_blocks} //",
+            f"macro bulkKernelBlocks(id) {kernel_blocks} //",
             f"macro staggeredThetaLoads() {staggered} //" if self.staggered else "",
             f"macro contactBlocks() {' '.join(tangent)} //",
             f"macro contactMatrix() {matrix('T{r}{c}', blocks)} //",

@@ -176,7 +176,8 @@ def plot_adapt(table: pd.DataFrame, flat: pd.DataFrame, fields: tuple[str, ...],
     matplotlib.use("Agg")
     import matplotlib.pyplot as plt
 
-    figure, axes = plt.subplots(1, len(fields), figsize=(4.2 * len(fields), 3.8), squeeze=False)
+    # At least 6 inches: one field's panel (an L-shape case) is narrower than the title.
+    figure, axes = plt.subplots(1, len(fields), figsize=(max(4.2 * len(fields), 6.0), 3.8), squeeze=False)
     rates = summary["rate_in_dofs"]
     for ax, f in zip(axes[0], fields):
         ax.loglog(table["dofs"], table[f"err_{f}"], "o-", label=f"adaptive ({rates['adaptive'][f]:.2f})")

@@ -67,7 +67,7 @@ def run(args: argparse.Namespace) -> int:
     levels = tuple(sorted(set(args.levels or base.levels)))
     reference = args.reference or ("P2", max(levels))
     # Grading moves a rectangle's lattice towards the ends of its contact segments
-    # (mesh.graded_msh); a box or a gmsh scene has no such lattice.
+    # (mesh.graded_level); a box or a gmsh scene has no such lattice.
     rectangle = isinstance(base.geometry, Geometry)
     if args.discretisations is None:
         # The adaptive loop warm-starts each step from the one before (harness/study/adapt.py).
