@@ -206,8 +206,8 @@ profile3d: $(STAMP) freefem
 # stress.csv, scale.md). Small sizes by default; on an idle machine:
 #   make scale SCALE_FLAGS="--mpi-levels 64,256 --mpi-3d-levels 8,16 --stress-levels="
 # PETSc alone at h = 1/16, and at 1/32 on 1 and 2 ranks (4 GB a run: on a shared machine under a lock):
-#   make scale SCALE_FLAGS="--parts petsc --petsc-3d-levels 16"
-#   flock LOCKFILE make scale SCALE_FLAGS="--parts petsc --petsc-3d-levels 32 --petsc-ranks 1,2 --repeats 1"
+#   make scale SCALE_FLAGS="--parts petsc3d --petsc-3d-levels 16"
+#   flock LOCKFILE make scale SCALE_FLAGS="--parts petsc3d --petsc-3d-levels 32 --petsc-ranks 1,2 --repeats 1"
 .PHONY: scale
 scale: $(STAMP) freefem
 	$(PY) -m harness scale $(SCALE_FLAGS)

@@ -30,7 +30,7 @@ from harness.scene.scene import load_scene
 from harness.core.writers import markdown_table, write_text
 
 CASES = REPO / "cases"
-PARTS = ("mpi", "petsc", "stress")
+PARTS = ("mpi", "petsc3d", "stress")
 # Each table's file in results/scale/ and its heading in scale.md, in the page's order.
 TABLES = {"mpi.csv": "One solve on 1 and 2 MPI ranks (paper scene)",
           "mpi3d.csv": "One 3D solve on 1 and 2 MPI ranks (paper3d)",
@@ -77,7 +77,7 @@ def run(args: argparse.Namespace) -> int:
         guarded += [Guarded(load_scene(CASES / "paper.toml", c), chain_levels(args.mpi_levels)) for c in configs]
         if args.mpi_3d_levels:
             guarded += [Guarded(load_scene(CASES / "paper3d.toml", c), chain_levels(args.mpi_3d_levels)) for c in configs]
-    if "petsc" in args.parts:
+    if "petsc3d" in args.parts:
         guarded += [Guarded(load_scene(CASES / "paper3d.toml", ['run.linear_solver="petsc"', f"run.ranks={count}"]),
                             chain_levels(args.petsc_3d_levels)) for count in args.petsc_ranks[:1]]
     if "stress" in args.parts:
@@ -91,9 +91,9 @@ def run(args: argparse.Namespace) -> int:
             tables["mpi.csv"] = mpi_table(CASES / "paper.toml", args.mpi_levels, (1, 2), work, args.coarse_spaces)
             if args.mpi_3d_levels:
                 tables["mpi3d.csv"] = mpi_table(CASES / "paper3d.toml", args.mpi_3d_levels, (1, 2), work, args.coarse_spaces)
-        if "petsc" in args.parts:
-            tables[f"petsc3d_n{max(args.petsc_3d_levels)}.csv"] = petsc_table(CASES / "paper3d.toml", args.petsc_3d_levels, args.petsc_ranks, work,
-                                                args.repeats)
+        if "petsc3d" in args.parts:
+            name = f"petsc3d_n{max(args.petsc_3d_levels)}.csv"
+            tables[name] = petsc_table(CASES / "paper3d.toml", args.petsc_3d_levels, args.petsc_ranks, work, args.repeats)
         if "stress" in args.parts:
             tables["stress.csv"] = stress_table(args.stress_levels, args.clusters, args.stress_repeats, out / "runs" / "stress")
         return tables
