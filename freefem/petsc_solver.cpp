@@ -1114,6 +1114,45 @@ long solveBulk(long const &id, long const &bulk, Matrice_Creuse<double> *const &
   return krylov(c, b, x, rtol, use);
 }
 
+// After a KSPSolve of c on vb, vx (started at t1, CPU c1): the options PETSc never read
+// (checked once, after the first solve: by then PETSc has read every option it will), the times,
+// the converged reason, the iterations and the true relative residual, whatever norm the Krylov
+// method monitored. *result: the iterations, kNotConverged or kUnusedOption.
+PetscErrorCode afterSolve(Context *c, Vec vb, Vec vx, double t1, double c1, long *result) {
+  if (!c->checkedOptions) {
+    c->checkedOptions = true;
+    std::string unused;
+    PetscCall(unusedOptions(*c, &unused));
+    if (!unused.empty()) {
+      std::cout << "error: PETSc option(s) " << unused
+                << " never used (misspelt, or for another solver or preconditioner)" << std::endl;
+      *result = kUnusedOption;
+      return 0;
+    }
+  }
+  c->lastSolve = now() - t1;
+  c->cpuSolve = cpu() - c1;
+  c->peakSolve = peakMb();
+  c->totalSolve += c->lastSolve;
+  KSPConvergedReason reason;
+  PetscCall(KSPGetConvergedReason(c->ksp, &reason));
+  PetscCall(KSPGetIterationNumber(c->ksp, &c->lastIts));
+  Vec r;
+  PetscReal rn, bn;
+  PetscCall(VecDuplicate(vb, &r));
+  PetscCall(MatMult(c->op, vx, r));
+  PetscCall(VecAYPX(r, -1.0, vb));
+  PetscCall(VecNorm(r, NORM_2, &rn));
+  PetscCall(VecNorm(vb, NORM_2, &bn));
+  PetscCall(VecDestroy(&r));
+  c->lastResidual = bn > 0 ? rn / bn : rn;
+  c->lastReason = (int)reason;
+  c->totalIts += c->lastIts;
+  ++c->solves;
+  *result = reason > 0 ? (long)c->lastIts : kNotConverged;
+  return 0;
+}
+
 long krylov(Context *c, KN<double> *b, KN<double> *x, double rtol, long reuse) {
   bool rebuild = !reuse || !c->pre;
   PetscInt n;
@@ -1165,42 +1204,11 @@ long krylov(Context *c, KN<double> *b, KN<double> *x, double rtol, long reuse) {
   for (PetscInt i : c->dirichlet) (*b)[i] = 0;
   double t1 = now(), c1 = cpu();
   TRY(KSPSolve(c->ksp, vb, vx), "solve");
-  if (!c->checkedOptions) {
-    // Checked once, after the first solve: by then PETSc has read every option it will.
-    c->checkedOptions = true;
-    std::string unused;
-    TRY(unusedOptions(*c, &unused), "options");
-    if (!unused.empty()) {
-      std::cout << "error: PETSc option(s) " << unused
-                << " never used (misspelt, or for another solver or preconditioner)" << std::endl;
-      VecDestroy(&vb);
-      VecDestroy(&vx);
-      return kUnusedOption;
-    }
-  }
-  c->lastSolve = now() - t1;
-  c->cpuSolve = cpu() - c1;
-  c->peakSolve = peakMb();
-  c->totalSolve += c->lastSolve;
-  KSPConvergedReason reason;
-  TRY(KSPGetConvergedReason(c->ksp, &reason), "solve");
-  TRY(KSPGetIterationNumber(c->ksp, &c->lastIts), "solve");
-  // The true relative residual, whatever norm the Krylov method monitored.
-  Vec r;
-  PetscReal rn, bn;
-  TRY(VecDuplicate(vb, &r), "residual");
-  TRY(MatMult(c->op, vx, r), "residual");
-  TRY(VecAYPX(r, -1.0, vb), "residual");
-  TRY(VecNorm(r, NORM_2, &rn), "residual");
-  TRY(VecNorm(vb, NORM_2, &bn), "residual");
-  TRY(VecDestroy(&r), "residual");
+  long result;
+  TRY(afterSolve(c, vb, vx, t1, c1, &result), "solve");
   TRY(VecDestroy(&vb), "vector");
   TRY(VecDestroy(&vx), "vector");
-  c->lastResidual = bn > 0 ? rn / bn : rn;
-  c->lastReason = (int)reason;
-  c->totalIts += c->lastIts;
-  ++c->solves;
-  return reason > 0 ? (long)c->lastIts : kNotConverged;
+  return result;
 }
 
 // stats = [iterations, true relative residual, converged reason, set-up s, solve s,
@@ -1688,33 +1696,9 @@ long ranksSolve(long const &id, long const &bulk, Matrice_Creuse<double> *const 
   TRYRANKS(VecRestoreArray(vb, &in), "vector");
   double t1 = now(), s1 = cpu();
   TRYKRYLOV(KSPSolve(c->ksp, vb, vx), "solve");
-  if (!c->checkedOptions) {
-    c->checkedOptions = true;
-    std::string unused;
-    TRYRANKS(unusedOptions(*c, &unused), "options");
-    if (!unused.empty()) {
-      std::cout << "error: PETSc option(s) " << unused
-                  << " never used (misspelt, or for another solver or preconditioner)" << std::endl;
-      VecDestroy(&vb);
-      VecDestroy(&vx);
-      return kUnusedOption;
-    }
-  }
-  c->lastSolve = now() - t1;
-  c->cpuSolve = cpu() - s1;
-  c->peakSolve = peakMb();
-  c->totalSolve += c->lastSolve;
-  KSPConvergedReason reason;
-  TRYRANKS(KSPGetConvergedReason(c->ksp, &reason), "solve");
-  TRYRANKS(KSPGetIterationNumber(c->ksp, &c->lastIts), "solve");
-  Vec r;
-  PetscReal rn, bn;
-  TRYRANKS(VecDuplicate(vb, &r), "residual");
-  TRYRANKS(MatMult(c->op, vx, r), "residual");
-  TRYRANKS(VecAYPX(r, -1.0, vb), "residual");
-  TRYRANKS(VecNorm(r, NORM_2, &rn), "residual");
-  TRYRANKS(VecNorm(vb, NORM_2, &bn), "residual");
-  TRYRANKS(VecDestroy(&r), "residual");
+  long result;
+  TRYRANKS(afterSolve(c, vb, vx, t1, s1, &result), "solve");
+  if (result == kUnusedOption) return result;
   TRYRANKS(VecScatterBegin(p->toLocal, vx, p->seq, INSERT_VALUES, SCATTER_FORWARD), "increment");
   TRYRANKS(VecScatterEnd(p->toLocal, vx, p->seq, INSERT_VALUES, SCATTER_FORWARD), "increment");
   const PetscScalar *out;
@@ -1723,11 +1707,7 @@ long ranksSolve(long const &id, long const &bulk, Matrice_Creuse<double> *const 
   TRYRANKS(VecRestoreArrayRead(p->seq, &out), "increment");
   TRYRANKS(VecDestroy(&vb), "vector");
   TRYRANKS(VecDestroy(&vx), "vector");
-  c->lastResidual = bn > 0 ? rn / bn : rn;
-  c->lastReason = (int)reason;
-  c->totalIts += c->lastIts;
-  ++c->solves;
-  return reason > 0 ? (long)c->lastIts : kNotConverged;
+  return result;
 }
 
 void destroyParts() {
