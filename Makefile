@@ -204,11 +204,15 @@ profile3d: $(STAMP) freefem
 	$(PY) -m harness profile cases/paper3d.toml --levels 16 $(PROFILE_FLAGS)
 
 # Past one machine (issue 15): the paper scene solved on 1 and 2 MPI ranks, in 2D and 3D
-# (time, Krylov iterations, per-rank memory, agreement), and the stress suite in this
-# process against local Dask clusters of 1 and 2 workers, each started and warmed before
-# the suite is timed (5 runs each, medians), into results/scale/ (mpi.csv, mpi3d.csv,
+# (time, Krylov iterations, per-rank memory, agreement), the 3D paper scene with PETSc across
+# 1, 2, 4 and 8 ranks (3 runs each, medians), and the stress suite in this process against
+# local Dask clusters of 1 and 2 workers, each started and warmed before the suite is timed
+# (5 runs each, medians), into results/scale/ (mpi.csv, mpi3d.csv, petsc3d_n<N>.csv,
 # stress.csv, scale.md). Small sizes by default; on an idle machine:
 #   make scale SCALE_FLAGS="--mpi-levels 64,256 --mpi-3d-levels 8,16 --stress-levels="
+# PETSc alone at h = 1/16, and at 1/32 on 1 and 2 ranks (4 GB a run: on a shared machine under a lock):
+#   make scale SCALE_FLAGS="--parts petsc3d --petsc-3d-levels 16"
+#   flock LOCKFILE make scale SCALE_FLAGS="--parts petsc3d --petsc-3d-levels 32 --petsc-ranks 1,2 --repeats 1"
 .PHONY: scale
 scale: $(STAMP) freefem
 	$(PY) -m harness scale $(SCALE_FLAGS)

@@ -38,11 +38,13 @@
 // return a negative code and the message goes to stdout as one "error:" line, so the
 // script can exit with a code of the project's contract (freefem/contract.idp).
 #include <petscksp.h>
+#include <petscsf.h>
 #include <chrono>
 #include <ctime>
 #include <fstream>
 #include <cstdlib>
 #include <algorithm>
+#include <limits>
 #include <cctype>
 #include <cmath>
 #include <cstring>
@@ -1112,6 +1114,45 @@ long solveBulk(long const &id, long const &bulk, Matrice_Creuse<double> *const &
   return krylov(c, b, x, rtol, use);
 }
 
+// After a KSPSolve of c on vb, vx (started at t1, CPU c1): the options PETSc never read
+// (checked once, after the first solve: by then PETSc has read every option it will), the times,
+// the converged reason, the iterations and the true relative residual, whatever norm the Krylov
+// method monitored. *result: the iterations, kNotConverged or kUnusedOption.
+PetscErrorCode afterSolve(Context *c, Vec vb, Vec vx, double t1, double c1, long *result) {
+  if (!c->checkedOptions) {
+    c->checkedOptions = true;
+    std::string unused;
+    PetscCall(unusedOptions(*c, &unused));
+    if (!unused.empty()) {
+      std::cout << "error: PETSc option(s) " << unused
+                << " never used (misspelt, or for another solver or preconditioner)" << std::endl;
+      *result = kUnusedOption;
+      return 0;
+    }
+  }
+  c->lastSolve = now() - t1;
+  c->cpuSolve = cpu() - c1;
+  c->peakSolve = peakMb();
+  c->totalSolve += c->lastSolve;
+  KSPConvergedReason reason;
+  PetscCall(KSPGetConvergedReason(c->ksp, &reason));
+  PetscCall(KSPGetIterationNumber(c->ksp, &c->lastIts));
+  Vec r;
+  PetscReal rn, bn;
+  PetscCall(VecDuplicate(vb, &r));
+  PetscCall(MatMult(c->op, vx, r));
+  PetscCall(VecAYPX(r, -1.0, vb));
+  PetscCall(VecNorm(r, NORM_2, &rn));
+  PetscCall(VecNorm(vb, NORM_2, &bn));
+  PetscCall(VecDestroy(&r));
+  c->lastResidual = bn > 0 ? rn / bn : rn;
+  c->lastReason = (int)reason;
+  c->totalIts += c->lastIts;
+  ++c->solves;
+  *result = reason > 0 ? (long)c->lastIts : kNotConverged;
+  return 0;
+}
+
 long krylov(Context *c, KN<double> *b, KN<double> *x, double rtol, long reuse) {
   bool rebuild = !reuse || !c->pre;
   PetscInt n;
@@ -1163,42 +1204,11 @@ long krylov(Context *c, KN<double> *b, KN<double> *x, double rtol, long reuse) {
   for (PetscInt i : c->dirichlet) (*b)[i] = 0;
   double t1 = now(), c1 = cpu();
   TRY(KSPSolve(c->ksp, vb, vx), "solve");
-  if (!c->checkedOptions) {
-    // Checked once, after the first solve: by then PETSc has read every option it will.
-    c->checkedOptions = true;
-    std::string unused;
-    TRY(unusedOptions(*c, &unused), "options");
-    if (!unused.empty()) {
-      std::cout << "error: PETSc option(s) " << unused
-                << " never used (misspelt, or for another solver or preconditioner)" << std::endl;
-      VecDestroy(&vb);
-      VecDestroy(&vx);
-      return kUnusedOption;
-    }
-  }
-  c->lastSolve = now() - t1;
-  c->cpuSolve = cpu() - c1;
-  c->peakSolve = peakMb();
-  c->totalSolve += c->lastSolve;
-  KSPConvergedReason reason;
-  TRY(KSPGetConvergedReason(c->ksp, &reason), "solve");
-  TRY(KSPGetIterationNumber(c->ksp, &c->lastIts), "solve");
-  // The true relative residual, whatever norm the Krylov method monitored.
-  Vec r;
-  PetscReal rn, bn;
-  TRY(VecDuplicate(vb, &r), "residual");
-  TRY(MatMult(c->op, vx, r), "residual");
-  TRY(VecAYPX(r, -1.0, vb), "residual");
-  TRY(VecNorm(r, NORM_2, &rn), "residual");
-  TRY(VecNorm(vb, NORM_2, &bn), "residual");
-  TRY(VecDestroy(&r), "residual");
+  long result;
+  TRY(afterSolve(c, vb, vx, t1, c1, &result), "solve");
   TRY(VecDestroy(&vb), "vector");
   TRY(VecDestroy(&vx), "vector");
-  c->lastResidual = bn > 0 ? rn / bn : rn;
-  c->lastReason = (int)reason;
-  c->totalIts += c->lastIts;
-  ++c->solves;
-  return reason > 0 ? (long)c->lastIts : kNotConverged;
+  return result;
 }
 
 // stats = [iterations, true relative residual, converged reason, set-up s, solve s,
@@ -1253,10 +1263,469 @@ long destroy(long const &id) {
   return 0;
 }
 
+// ---- Distributed solves: run.ranks > 1 (freefem/petsc_ranks.idp) ----
+//
+// On N ranks each rank holds its overlapping subdomain (freefem/ranks.idp): its Newton vector's
+// dofs, the partition of unity D on them, and for each its index in the natural numbering of
+// the whole mesh's Newton vector (fields concatenated, a vector field's components per node),
+// which the script derives from the global mesh every rank keeps. From these:
+//
+//   int part = petscRanksPart(natural, D, dirichlet);      // who owns which dof, PETSc's numbering
+//   int id = petscRanksCreate(part, options, names, sizes, blocks, coords);
+//   petscAddLevel(id, interpolation);                      // multigrid levels, as on one rank
+//   int its = petscRanksSolve(id, bulk, T, b, x, rtol, reuse);   // this rank's K (petscBulk*), T
+//
+// Each dof is owned by the lowest rank whose D is non-zero there; a rank's owned dofs are
+// consecutive in PETSc's numbering, in the order of its Newton vector, so each field's owned
+// dofs are one stride and the displacement's components stay together (block size d).
+// The distributed matrix is sum_i R_i^T D_i A_i R_i (where D_i != 0 a local row is the
+// global row, ranks.idp), each rank adding its rows with D_i != 0; the Dirichlet rows and
+// columns (of a mask consistent over the ranks) become identity ones, as on one rank
+// (dirichletRows). A vector goes in by its owners' entries and comes back to every local dof
+// by one scatter, so the increment is the same on every rank to the bit.
+struct RanksPart {
+  PetscInt local = 0, owned = 0, first = 0, size = 0;
+  std::vector<PetscInt> index;       // PETSc's global index of each local dof
+  std::vector<char> own, dirichlet;  // owned here; a Dirichlet dof (consistent mask)
+  std::vector<double> weight;        // D
+  VecScatter toLocal = nullptr;      // PETSc's vector -> every local dof
+  Vec spread = nullptr, seq = nullptr;   // a vector of PETSc's layout; the local dofs' one
+  std::vector<PetscInt> sizes, blocks;   // each field's local dofs and components per node
+};
+std::vector<RanksPart *> parts;
+std::vector<long> partOfContext;   // contexts[id]'s part, -1: a one-rank context
+
+int mpiRank() {
+  int r = 0;
+  MPI_Comm_rank(PETSC_COMM_WORLD, &r);
+  return r;
+}
+
+// An error on one rank or on all: each rank that meets it says it, with its rank (the harness
+// reports the first line), and the script ends every rank with petscRanksAbort.
+long failRanks(PetscErrorCode ierr, const std::string &where) {
+  return fail(ierr, where + " (rank " + std::to_string(mpiRank()) + ")");
+}
+
+// Ends every rank with `code`: the ranks still waiting in a collective call for the one that
+// failed would otherwise wait for ever (MPI_Abort; the launcher returns its code).
+long ranksAbort(long const &code) {
+  std::cout.flush();
+  MPI_Abort(PETSC_COMM_WORLD, (int)code);
+  return code;
+}
+#define TRYRANKS(call, where) do { PetscErrorCode ierr_ = (call); if (ierr_) return failRanks(ierr_, where); } while (0)
+// An error inside the Krylov solve or its preconditioner's set-up (a failed factorisation,
+// -ksp_error_if_not_converged, ...): the solve failed, not the options (freefem/petsc_ranks.idp).
+const long kKrylovError = -4;
+#define TRYKRYLOV(call, where) do { PetscErrorCode ierr_ = (call); if (ierr_) { failRanks(ierr_, where); return kKrylovError; } } while (0)
+
+RanksPart *partOf(long id) {
+  if (id < 0 || id >= (long)partOfContext.size() || partOfContext[id] < 0) return nullptr;
+  return parts[partOfContext[id]];
+}
+
+// Owners and PETSc's numbering: the natural numbering's dofs split evenly over the ranks as
+// roots of a star forest whose leaves are the ranks' local dofs; a reduction finds each dof's
+// lowest rank with D != 0, the owners number theirs, a second reduction hands the numbers out.
+PetscErrorCode numberDofs(RanksPart &p, const std::vector<PetscInt> &natural) {
+  MPI_Comm comm = PETSC_COMM_WORLD;
+  int rank = mpiRank();
+  PetscInt largest = -1;
+  for (PetscInt k : natural) largest = std::max(largest, k);
+  PetscCallMPI(MPI_Allreduce(&largest, &p.size, 1, MPIU_INT, MPI_MAX, comm));
+  ++p.size;
+  PetscLayout layout;
+  PetscCall(PetscLayoutCreate(comm, &layout));
+  PetscCall(PetscLayoutSetSize(layout, p.size));
+  PetscCall(PetscLayoutSetUp(layout));
+  PetscSF sf;
+  PetscCall(PetscSFCreate(comm, &sf));
+  PetscCall(PetscSFSetGraphLayout(sf, layout, p.local, nullptr, PETSC_COPY_VALUES, natural.data()));
+  PetscInt roots;
+  PetscCall(PetscLayoutGetLocalSize(layout, &roots));
+  PetscCall(PetscLayoutDestroy(&layout));
+  const PetscInt none = std::numeric_limits<PetscInt>::max();
+  std::vector<PetscInt> rootData(roots, none), leafData(p.local);
+  for (PetscInt i = 0; i < p.local; ++i) leafData[i] = p.weight[i] > 0 ? rank : none;
+  PetscCall(PetscSFReduceBegin(sf, MPIU_INT, leafData.data(), rootData.data(), MPI_MIN));
+  PetscCall(PetscSFReduceEnd(sf, MPIU_INT, leafData.data(), rootData.data(), MPI_MIN));
+  PetscCall(PetscSFBcastBegin(sf, MPIU_INT, rootData.data(), leafData.data(), MPI_REPLACE));
+  PetscCall(PetscSFBcastEnd(sf, MPIU_INT, rootData.data(), leafData.data(), MPI_REPLACE));
+  p.own.assign(p.local, 0);
+  p.owned = 0;
+  bool uncovered = false;
+  for (PetscInt i = 0; i < p.local; ++i) {
+    uncovered = uncovered || leafData[i] == none;
+    if (leafData[i] == rank) { p.own[i] = 1; ++p.owned; }
+  }
+  if (uncovered) {
+    PetscSFDestroy(&sf);
+    lastMessage = "a dof that no rank's partition of unity covers";
+    return PETSC_ERR_ARG_WRONG;
+  }
+  PetscCallMPI(MPI_Scan(&p.owned, &p.first, 1, MPIU_INT, MPI_SUM, comm));
+  p.first -= p.owned;
+  std::fill(rootData.begin(), rootData.end(), -1);
+  for (PetscInt i = 0, k = p.first; i < p.local; ++i) leafData[i] = p.own[i] ? k++ : -1;
+  PetscCall(PetscSFReduceBegin(sf, MPIU_INT, leafData.data(), rootData.data(), MPI_MAX));
+  PetscCall(PetscSFReduceEnd(sf, MPIU_INT, leafData.data(), rootData.data(), MPI_MAX));
+  PetscCall(PetscSFBcastBegin(sf, MPIU_INT, rootData.data(), leafData.data(), MPI_REPLACE));
+  PetscCall(PetscSFBcastEnd(sf, MPIU_INT, rootData.data(), leafData.data(), MPI_REPLACE));
+  PetscCall(PetscSFDestroy(&sf));
+  p.index = leafData;
+  PetscCall(VecCreateMPI(comm, p.owned, p.size, &p.spread));
+  PetscCall(VecCreateSeq(PETSC_COMM_SELF, p.local, &p.seq));
+  IS from, to;
+  PetscCall(ISCreateGeneral(PETSC_COMM_SELF, p.local, p.index.data(), PETSC_COPY_VALUES, &from));
+  PetscCall(ISCreateStride(PETSC_COMM_SELF, p.local, 0, 1, &to));
+  PetscCall(VecScatterCreate(p.spread, from, p.seq, to, &p.toLocal));
+  PetscCall(ISDestroy(&from));
+  return ISDestroy(&to);
+}
+
+long ranksPart(KN<double> *const &natural, KN<double> *const &weight, KN<double> *const &dirichlet) {
+  TRYRANKS(start(), "start");
+  RanksPart *p = new RanksPart;
+  p->local = natural->N();
+  if (weight->N() != p->local || dirichlet->N() != p->local) {
+    delete p;
+    lastMessage = "the natural numbering, the partition of unity and the Dirichlet mask differ in size";
+    return failRanks(PETSC_ERR_ARG_SIZ, "decomposition");
+  }
+  std::vector<PetscInt> nat(p->local);
+  p->weight.resize(p->local);
+  p->dirichlet.resize(p->local);
+  for (PetscInt i = 0; i < p->local; ++i) {
+    nat[i] = (PetscInt)std::lround((*natural)[i]);
+    p->weight[i] = (*weight)[i];
+    p->dirichlet[i] = (*dirichlet)[i] != 0;
+  }
+  parts.push_back(p);
+  TRYRANKS(numberDofs(*p, nat), "decomposition");
+  return (long)parts.size() - 1;
+}
+
+// A solver context on every rank: the options as on one rank, the fields as strides of the
+// owned dofs, the rigid-body modes from the owned displacement dofs' coordinates.
+long ranksCreate(long const &part, string *const &options, string *const &names, KN<long> *const &sizes,
+                 KN<long> *const &blocks, KN<double> *const &coords) {
+  if (part < 0 || part >= (long)parts.size() || !parts[part]) {
+    lastMessage = "no decomposition " + std::to_string(part);
+    return failRanks(PETSC_ERR_ARG_OUTOFRANGE, "context");
+  }
+  RanksPart &p = *parts[part];
+  MPI_Comm comm = PETSC_COMM_WORLD;
+  Context *c = new Context;
+  std::istringstream words(*names);
+  for (std::string w; words >> w;) c->names.push_back(w);
+  contexts.push_back(c);
+  long id = (long)contexts.size() - 1;
+  partOfContext.resize(contexts.size(), -1);
+  partOfContext[id] = part;
+  PetscInt total = 0;
+  for (long k = 0; k < sizes->N(); ++k) total += (*sizes)[k];
+  if (c->names.size() != (size_t)sizes->N() || sizes->N() != blocks->N() || total != p.local) {
+    lastMessage = "the fields' names, sizes and blocks do not describe the " + std::to_string(p.local) + " local dofs";
+    return failRanks(PETSC_ERR_ARG_SIZ, "context");
+  }
+  c->prefix = "s" + std::to_string(id) + "_";
+  TRYRANKS(PetscOptionsInsertString(nullptr, prefixed(*options, c->prefix).c_str()), "options \"" + *options + "\"");
+  PetscInt offset = 0, ownedOffset = p.first;
+  for (long k = 0; k < sizes->N(); ++k) {
+    PetscInt n = (*sizes)[k], bs = (*blocks)[k], mine = 0;
+    p.sizes.push_back(n);
+    p.blocks.push_back(bs);
+    for (PetscInt i = offset; i < offset + n; ++i) mine += p.own[i];
+    IS is;
+    TRYRANKS(ISCreateStride(comm, mine, ownedOffset, 1, &is), "index set");
+    TRYRANKS(ISSetBlockSize(is, bs), "block size of field " + c->names[k]);
+    if (bs > 1 && !c->rigid && coords->N() == n) {
+      Vec xyz;
+      TRYRANKS(VecCreateMPI(comm, mine, PETSC_DECIDE, &xyz), "coordinates");
+      TRYRANKS(VecSetBlockSize(xyz, bs), "coordinates");
+      PetscScalar *v;
+      TRYRANKS(VecGetArray(xyz, &v), "coordinates");
+      for (PetscInt i = 0, q = 0; i < n; ++i) if (p.own[offset + i]) v[q++] = (*coords)[i];
+      TRYRANKS(VecRestoreArray(xyz, &v), "coordinates");
+      TRYRANKS(MatNullSpaceCreateRigidBody(xyz, &c->rigid), "rigid-body modes");
+      TRYRANKS(VecDestroy(&xyz), "coordinates");
+      TRYRANKS(PetscObjectCompose((PetscObject)is, "nearnullspace", (PetscObject)c->rigid), "near-null space");
+    }
+    c->fields.push_back(is);
+    offset += n;
+    ownedOffset += mine;
+  }
+  c->size = p.size;
+  TRYRANKS(KSPCreate(comm, &c->ksp), "KSP");
+  TRYRANKS(KSPSetOptionsPrefix(c->ksp, c->prefix.c_str()), "options");
+  // The one-rank defaults (create): GMRES on the true residual, by right preconditioning.
+  TRYRANKS(KSPSetType(c->ksp, KSPGMRES), "KSP type");
+  TRYRANKS(KSPSetPCSide(c->ksp, PC_RIGHT), "PC side");
+  TRYRANKS(KSPGMRESSetRestart(c->ksp, 100), "GMRES restart");
+  TRYRANKS(KSPSetTolerances(c->ksp, 1e-8, 0.0, 1e50, 1000), "tolerances");
+  TRYRANKS(KSPSetFromOptions(c->ksp), "options \"" + *options + "\"");
+  PC pc;
+  TRYRANKS(KSPGetPC(c->ksp, &pc), "fields");
+  TRYRANKS(eachLeaf(*c, pc, attachFields), "fields");
+  return id;
+}
+
+// The distributed operator from this rank's K and T: K its subdomain's bulk matrix, held by the
+// plugin as on one rank (Bulk: 12 bytes an entry, FreeFEM's own matrix about 40) and never
+// changed on ranks, T its contact tangent; both are added here (FreeFEM's K + T took 22 of a 3D
+// n = 8 run's 32 s on 2 ranks). *out: the last operator, refilled in place (its pattern kept; T
+// may still add entries), or null: a new one, preallocated exactly from the owned rows.
+PetscErrorCode ranksOperator(const RanksPart &p, Bulk &bulk, Matrice_Creuse<double> *T, Mat *out) {
+  MatriceMorse<double> *t = T->A ? dynamic_cast<MatriceMorse<double> *>(&*T->A) : nullptr;
+  if (T->A && (!t || t->half || t->n != p.local || t->m != p.local)) {
+    lastMessage = "the contact tangent is not a full sparse matrix of the subdomain's " + std::to_string(p.local) + " dofs";
+    return PETSC_ERR_ARG_SIZ;
+  }
+  if (bulk.n != p.local) {
+    lastMessage = "the bulk matrix has " + std::to_string(bulk.n) + " rows where the subdomain has " + std::to_string(p.local) +
+                  " dofs";
+    return PETSC_ERR_ARG_SIZ;
+  }
+  if (t) t->CSR();
+  PetscCall(restoreK(bulk));
+  Rows k;
+  PetscCall(openRows(bulk.J, &k));
+  std::vector<PetscInt> cols;
+  std::vector<PetscScalar> vals;
+  // Row i of a CSR matrix (its columns from..to of ja, values of a) weighted by D_i, without the
+  // Dirichlet columns, added into m.
+  auto addRow = [&](Mat m, PetscInt i, auto from, auto to, auto ja, const double *a) -> PetscErrorCode {
+    cols.clear();
+    vals.clear();
+    for (auto q = from; q < to; ++q) {
+      if (p.dirichlet[ja[q]]) continue;
+      cols.push_back(p.index[ja[q]]);
+      vals.push_back(p.weight[i] * a[q]);
+    }
+    return MatSetValues(m, 1, &p.index[i], (PetscInt)cols.size(), cols.data(), vals.data(), ADD_VALUES);
+  };
+  auto add = [&](Mat m) -> PetscErrorCode {
+    for (PetscInt i = 0; i < p.local; ++i) {
+      if (p.dirichlet[i]) {
+        if (p.own[i]) PetscCall(MatSetValue(m, p.index[i], p.index[i], 1.0, ADD_VALUES));
+        continue;
+      }
+      if (p.weight[i] == 0) continue;
+      PetscCall(addRow(m, i, k.ia[i], k.ia[i + 1], k.ja, k.a));
+      if (t) PetscCall(addRow(m, i, t->p[i], t->p[i + 1], t->j, t->aij));
+    }
+    PetscCall(MatAssemblyBegin(m, MAT_FINAL_ASSEMBLY));
+    return MatAssemblyEnd(m, MAT_FINAL_ASSEMBLY);
+  };
+  if (*out) {
+    PetscCall(MatZeroEntries(*out));
+  } else {
+    // An owned row is whole on its owner (D != 0 there): its columns there are the global row's,
+    // each in the diagonal block when this rank owns its dof too. T's are counted as if apart
+    // from K's (a few Gamma_3 rows slightly over-allocated).
+    std::vector<PetscInt> inside(p.owned, 0), outside(p.owned, 0);
+    for (PetscInt i = 0; i < p.local; ++i) {
+      if (!p.own[i]) continue;
+      PetscInt row = p.index[i] - p.first;
+      if (p.dirichlet[i]) { inside[row] = 1; continue; }
+      for (PetscInt q = k.ia[i]; q < k.ia[i + 1]; ++q) ++(p.own[k.ja[q]] ? inside[row] : outside[row]);
+      if (t) for (auto q = t->p[i]; q < t->p[i + 1]; ++q) ++(p.own[t->j[q]] ? inside[row] : outside[row]);
+    }
+    PetscCall(MatCreate(PETSC_COMM_WORLD, out));
+    PetscCall(MatSetType(*out, MATAIJ));
+    PetscCall(MatSetSizes(*out, p.owned, p.owned, p.size, p.size));
+    PetscCall(MatSeqAIJSetPreallocation(*out, 0, inside.data()));
+    PetscCall(MatMPIAIJSetPreallocation(*out, 0, inside.data(), 0, outside.data()));
+    PetscCall(MatSetOption(*out, MAT_NEW_NONZERO_ALLOCATION_ERR, PETSC_FALSE));
+  }
+  PetscCall(add(*out));
+  return closeRows(&k);
+}
+
+// The distributed interpolation of the Newton vector from multigrid level k + 1 onto level k
+// (0 the Newton mesh) from the nodal one: on level 0 its rows are this rank's local nodes
+// (the script interpolates the whole coarse mesh onto the subdomain) and it sets the rows of
+// the dofs it owns, Dirichlet ones zero (attachLevels) but kept in the pattern: a coarse dof
+// whose hat reaches only Dirichlet dofs then still has its diagonal in the Galerkin product,
+// where PCMG sets one (across ranks MatGalerkin's MatDiagonalSet may not add an entry: "new
+// nonzero caused a malloc", 2D n = 16 on 4 ranks); below, every rank has the whole nodal
+// interpolation between two coarse meshes and sets the rows of PETSc's even split, the layout
+// of the coarse levels (their natural numbering).
+PetscErrorCode ranksInterpolation(const RanksPart &p, Mat nodal, size_t level, Mat *out) {
+  PetscInt rows, cols;
+  PetscCall(MatGetSize(nodal, &rows, &cols));
+  PetscInt fineSize = 0, coarseSize = 0;
+  for (PetscInt bs : p.blocks) { fineSize += bs * rows; coarseSize += bs * cols; }
+  PetscInt localRows = PETSC_DECIDE;
+  if (level == 0) {
+    if (fineSize != p.local) {
+      lastMessage = "petscAddLevel: an interpolation onto " + std::to_string(rows) + " nodes where the subdomain has " +
+                    std::to_string(p.sizes[0] / p.blocks[0]) + " (multigrid needs every field P1 on nested meshes)";
+      return PETSC_ERR_ARG_SIZ;
+    }
+    fineSize = p.size;
+    localRows = p.owned;
+  }
+  PetscCall(MatCreate(PETSC_COMM_WORLD, out));
+  PetscCall(MatSetType(*out, MATAIJ));
+  PetscCall(MatSetSizes(*out, localRows, PETSC_DECIDE, fineSize, coarseSize));
+  PetscCall(MatSeqAIJSetPreallocation(*out, 4, nullptr));
+  PetscCall(MatMPIAIJSetPreallocation(*out, 4, nullptr, 4, nullptr));
+  PetscCall(MatSetOption(*out, MAT_NEW_NONZERO_ALLOCATION_ERR, PETSC_FALSE));
+  PetscInt lo, hi;
+  PetscCall(MatGetOwnershipRange(*out, &lo, &hi));
+  PetscInt fineOffset = 0, coarseOffset = 0;
+  std::vector<PetscInt> idx;
+  std::vector<PetscScalar> val;
+  for (PetscInt bs : p.blocks) {
+    for (PetscInt i = 0; i < rows; ++i) {
+      PetscInt count;
+      const PetscInt *cj;
+      const PetscScalar *cv;
+      PetscCall(MatGetRow(nodal, i, &count, &cj, &cv));
+      for (PetscInt comp = 0; comp < bs; ++comp) {
+        PetscInt dof = fineOffset + i * bs + comp, row = dof;
+        bool mine = level == 0 ? p.own[dof] != 0 : (dof >= lo && dof < hi);
+        if (!mine) continue;
+        if (level == 0) row = p.index[dof];
+        idx.clear();
+        val.clear();
+        bool fixed = level == 0 && p.dirichlet[dof];
+        for (PetscInt k = 0; k < count; ++k)
+          if (cv[k] != 0.0) { idx.push_back(coarseOffset + cj[k] * bs + comp); val.push_back(fixed ? 0.0 : cv[k]); }
+        if (!idx.empty()) PetscCall(MatSetValues(*out, 1, &row, (PetscInt)idx.size(), idx.data(), val.data(), INSERT_VALUES));
+      }
+      PetscCall(MatRestoreRow(nodal, i, &count, &cj, &cv));
+    }
+    fineOffset += bs * rows;
+    coarseOffset += bs * cols;
+  }
+  PetscCall(MatAssemblyBegin(*out, MAT_FINAL_ASSEMBLY));
+  return MatAssemblyEnd(*out, MAT_FINAL_ASSEMBLY);
+}
+
+// The levels on a PCMG of a distributed context (attachLevels' twin).
+PetscErrorCode attachRanksLevels(Context &c, PC pc) {
+  PetscBool mg = PETSC_FALSE;
+  PetscCall(PetscObjectTypeCompare((PetscObject)pc, PCMG, &mg));
+  if (!mg) return 0;
+  long id = std::find(contexts.begin(), contexts.end(), &c) - contexts.begin();
+  const RanksPart &p = *partOf(id);
+  PetscInt levels = (PetscInt)c.nodal.size() + 1;
+  PetscCall(PCMGSetLevels(pc, levels, nullptr));
+  for (size_t k = 0; k < c.nodal.size(); ++k) {
+    Mat interpolation;
+    PetscCall(ranksInterpolation(p, c.nodal[k], k, &interpolation));
+    PetscCall(PCMGSetInterpolation(pc, levels - 1 - (PetscInt)k, interpolation));
+    PetscCall(MatDestroy(&interpolation));
+  }
+  PetscCall(PCMGSetGalerkin(pc, PC_MG_GALERKIN_BOTH));
+  if (mpiRank() == 0) std::cout << "multigrid: " << levels << " levels on " << p.size << " dofs" << std::endl;
+  PetscCall(PCSetFromOptions(pc));
+  c.oneLevel = levels == 1;
+  if (levels > 1) return 0;
+  KSP coarse;
+  const char *prefix = nullptr;
+  PetscCall(PCMGGetCoarseSolve(pc, &coarse));
+  PetscCall(PCGetOptionsPrefix(pc, &prefix));
+  PetscCall(KSPSetOptionsPrefix(coarse, (std::string(prefix ? prefix : "") + "mg_coarse_").c_str()));
+  return KSPSetFromOptions(coarse);
+}
+
+// x = (K + T)^-1 b over the ranks, to ||b - (K + T) x|| <= rtol ||b||, from x = 0; K and T
+// this rank's, b consistent; x comes back consistent. reuse as in solve() (one rank).
+long ranksSolve(long const &id, long const &bulk, Matrice_Creuse<double> *const &T, KN<double> *const &b,
+                KN<double> *const &x, double const &rtol, long const &reuse) {
+  Context *c = context(id);
+  RanksPart *p = partOf(id);
+  Bulk *k = bulkOf(bulk);
+  if (!c || !p || !k || !k->J) return failRanks(PETSC_ERR_ARG_OUTOFRANGE, "solve");
+  if (b->N() != p->local || x->N() != p->local) {
+    lastMessage = "vectors of " + std::to_string(b->N()) + " and " + std::to_string(x->N()) + " entries where the subdomain has " +
+                  std::to_string(p->local) + " dofs";
+    return failRanks(PETSC_ERR_ARG_SIZ, "solve");
+  }
+  double c0 = cpu();
+  // One distributed matrix, the operator and the preconditioner's, refilled in place: a second
+  // would cost a copy of K on every rank. A reused multigrid keeps its Galerkin coarse operators
+  // (PCMG's set-up is skipped); the inner solvers built on this matrix itself (the finest
+  // smoother's block-Jacobi ILU, a one-level multigrid's LU) see it change and set up again at
+  // their next solve (3D n = 8 on 2 ranks: 1 Krylov iteration a step where the stale LU of a
+  // second matrix took 10-13).
+  if (reuse < 2 || !c->op) TRYRANKS(ranksOperator(*p, *k, T, &c->op), "matrix K + T");
+  c->cpuOperator = cpu() - c0;
+  c->peakOperator = peakMb();
+  bool rebuild = !reuse || !c->pre;
+  if (rebuild) {
+    TRYRANKS(MatDestroy(&c->pre), "matrix");
+    TRYRANKS(PetscObjectReference((PetscObject)c->op), "matrix");
+    c->pre = c->op;
+    if (c->rigid && c->fields.size() == 1) TRYRANKS(MatSetNearNullSpace(c->pre, c->rigid), "near-null space");
+  }
+  TRYRANKS(KSPSetOperators(c->ksp, c->op, c->pre), "operators");
+  if (!c->levelsAttached) {
+    PC pc;
+    TRYRANKS(KSPGetPC(c->ksp, &pc), "multigrid levels");
+    TRYRANKS(eachLeaf(*c, pc, attachRanksLevels), "multigrid levels");
+    c->levelsAttached = true;
+  }
+  TRYRANKS(KSPSetReusePreconditioner(c->ksp, rebuild ? PETSC_FALSE : PETSC_TRUE), "reuse");
+  TRYRANKS(KSPSetTolerances(c->ksp, rtol, 0.0, PETSC_DEFAULT, PETSC_DEFAULT), "tolerances");
+  double t0 = now(), s0 = cpu();
+  c->lastSetup = 0;
+  c->cpuSetup = 0;
+  if (rebuild) {
+    PC pc;
+    TRYKRYLOV(KSPSetUp(c->ksp), "set-up");
+    TRYRANKS(KSPGetPC(c->ksp, &pc), "set-up");
+    TRYKRYLOV(PCSetUp(pc), "preconditioner set-up");
+    c->lastSetup = now() - t0;
+    c->cpuSetup = cpu() - s0;
+    c->totalSetup += c->lastSetup;
+    ++c->setups;
+  }
+  c->peakSetup = peakMb();
+  Vec vb, vx;
+  TRYRANKS(VecDuplicate(p->spread, &vb), "vector");
+  TRYRANKS(VecDuplicate(p->spread, &vx), "vector");
+  PetscScalar *in;
+  TRYRANKS(VecGetArray(vb, &in), "vector");
+  for (PetscInt i = 0; i < p->local; ++i)
+    if (p->own[i]) in[p->index[i] - p->first] = p->dirichlet[i] ? 0.0 : (*b)[i];
+  TRYRANKS(VecRestoreArray(vb, &in), "vector");
+  double t1 = now(), s1 = cpu();
+  TRYKRYLOV(KSPSolve(c->ksp, vb, vx), "solve");
+  long result;
+  TRYRANKS(afterSolve(c, vb, vx, t1, s1, &result), "solve");
+  if (result == kUnusedOption) return result;
+  TRYRANKS(VecScatterBegin(p->toLocal, vx, p->seq, INSERT_VALUES, SCATTER_FORWARD), "increment");
+  TRYRANKS(VecScatterEnd(p->toLocal, vx, p->seq, INSERT_VALUES, SCATTER_FORWARD), "increment");
+  const PetscScalar *out;
+  TRYRANKS(VecGetArrayRead(p->seq, &out), "increment");
+  for (PetscInt i = 0; i < p->local; ++i) (*x)[i] = out[i];
+  TRYRANKS(VecRestoreArrayRead(p->seq, &out), "increment");
+  TRYRANKS(VecDestroy(&vb), "vector");
+  TRYRANKS(VecDestroy(&vx), "vector");
+  return result;
+}
+
+void destroyParts() {
+  for (RanksPart *&p : parts) {
+    if (!p) continue;
+    VecScatterDestroy(&p->toLocal);
+    VecDestroy(&p->spread);
+    VecDestroy(&p->seq);
+    delete p;
+    p = nullptr;
+  }
+}
+
 // PETSc finalised before FreeFEM ends (and before FreeFem++-mpi's MPI_Finalize).
 void finish() {
   for (long id = 0; id < (long)contexts.size(); ++id) destroy(id);
   for (long id = 0; id < (long)bulks.size(); ++id) bulkDestroy(id);
+  destroyParts();
   if (started) PetscFinalize();
   started = false;
 }
@@ -1285,6 +1754,13 @@ static void init() {
   Global.Add("petscStats", "(", new OneOperator2_<long, long, KN<double> *>(stats));
   Global.Add("petscAddLevel", "(", new OneOperator2_<long, long, Matrice_Creuse<double> *>(addLevel));
   Global.Add("petscDestroy", "(", new OneOperator1_<long, long>(destroy));
+  Global.Add("petscRanksPart", "(", new OneOperator3_<long, KN<double> *, KN<double> *, KN<double> *>(ranksPart));
+  Global.Add("petscRanksCreate", "(",
+             new OneOperator6_<long, long, string *, string *, KN<long> *, KN<long> *, KN<double> *>(ranksCreate));
+  Global.Add("petscRanksAbort", "(", new OneOperator1_<long, long>(ranksAbort));
+  Global.Add("petscRanksSolve", "(",
+             new OneOperator7_<long, long, long, Matrice_Creuse<double> *, KN<double> *, KN<double> *, double,
+                                long>(ranksSolve));
   ff_atend(finish);
 }
 

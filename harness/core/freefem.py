@@ -180,7 +180,12 @@ def wait_measured(proc: subprocess.Popen, timeout_s: float) -> tuple[int | None,
 
 
 def error_detail(log: str) -> str:
-    line = next((line.strip() for line in log.splitlines() if ERROR_LINE.search(line)), "")
+    """The line that says why: the scripts' own "error: ..." line wherever it is (on MPI ranks
+    the launcher's stderr comes first, with its own lines about the abort), else the first
+    line that looks like an error."""
+    lines = [line.strip() for line in log.splitlines()]
+    line = next((line for line in lines if line.startswith("error:")), "")
+    line = line or next((line for line in lines if ERROR_LINE.search(line)), "")
     return line[:200]
 
 

@@ -164,6 +164,11 @@ def invocation(scene: Scene, mesh: Path, n: int, layout: Layout, guess: str, sta
         options += ["-mesh.small_cells", "1"]
     if parallel:
         options += ["-parallel.krylov_rtol", repr(scene.sections.run.krylov_rtol)]
+    if parallel and solver.options_key:
+        # PETSc assembles one matrix across the ranks from the rows each holds whole (those where its
+        # partition of unity is non-zero): one element layer of overlap gives them all, and the n/8
+        # layers the script's Schwarz preconditioner needs would only add to every rank's share.
+        options += ["-parallel.overlap", "1"]
     if parallel and scene.coarse_levels:
         meshes += coarse_space(scene, n, mesh)
         options += coarse_space_options(scene, n, mesh)

@@ -41,7 +41,7 @@ def main_script(
     lines = ["// Written by the harness (harness/run/script.py); edit the scene, not this file."]
     if ranks:
         lines.append("macro PARALLELSCHEME 1 //")
-    lines += linear_solver.macros(plugin)
+    lines += linear_solver.macros(plugin, ranks)
     lines += [f"macro {effect_macro(e)} 1 //" for e in effects]
     lines.append(f"macro ELEMENT {element} //")
     # The fields' code, and the dimension of the displacement (harness/scene/unknowns.py).

@@ -36,18 +36,25 @@ class LinearSolver:
     # The run.* key holding the solver's own options, passed to FreeFEM as -run.<key> and
     # keyed with the run ("" : it has none).
     options_key: str = ""
-    # The options when that key is blank, by dimension and Newton fields (measured defaults).
-    default_options: Callable[[int, tuple[str, ...]], str] | None = None
-    # MPI ranks factorise each subdomain with the scene's solver (freefem/ranks.idp, parallel_newton.idp).
+    # The options when that key is blank, by dimension, Newton fields and ranks (measured defaults).
+    default_options: Callable[[int, tuple[str, ...], int], str] | None = None
+    # Solves on MPI ranks: a factorisation per subdomain under the script's Schwarz preconditioner
+    # (freefem/ranks.idp, parallel_newton.idp), or PETSc across the ranks (freefem/petsc_ranks.idp).
     on_ranks: bool = True
     # A floating electrode's exact elimination is written for FreeFEM's own matrices.
     floating: bool = True
 
-    def macros(self, plugin_path: Path | None = None) -> list[str]:
-        """main.edp's lines that select this solver (freefem/effects.idp defaults to UMFPACK)."""
+    def macros(self, plugin_path: Path | None = None, ranks: bool = False) -> list[str]:
+        """main.edp's lines that select this solver (freefem/effects.idp defaults to UMFPACK);
+        `ranks`: for the N-rank backend (freefem/ranks.idp)."""
         if self.builds_plugin:
             if plugin_path is None:
                 raise ValueError(f"linear_solver {self.name!r} needs the built plugin's path")
+            if ranks:
+                # PETSc across the ranks (freefem/petsc_ranks.idp): each rank's bulk matrix goes to the
+                # plugin as on one rank (freefem/bulk.idp), which adds it into the distributed one.
+                return [f'load "{plugin_path.with_suffix("")}"', "macro PETSCSOLVER 1 //", "macro PETSCRANKS 1 //",
+                        "macro LINEARSOLVER UMFPACK //", f'string linearSolverName = "{self.reported}";']
             # The Newton system goes to PETSc (freefem/petsc_linear_solver.idp); the few direct
             # solves left (a staggered theta, the pressed start) to FreeFEM's UMFPACK: a MUMPS
             # plugin would bring a second MUMPS library into the process beside PETSc's.
@@ -83,7 +90,7 @@ SOLVERS: dict[str, LinearSolver] = {s.name: s for s in (
     LinearSolver("umfpack", "UMFPACK"),
     LinearSolver("umfpack64", "UMFPACK64", plugin="UMFPACK64"),
     LinearSolver("petsc", "PETSc", builds_plugin=True, options_key="petsc_options", default_options=default_options,
-                 on_ranks=False, floating=False),
+                 floating=False),
 )}
 
 

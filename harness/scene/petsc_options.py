@@ -32,6 +32,12 @@ MULTIGRID = ("-ksp_type fgmres -pc_type mg -mg_levels_ksp_type gmres -mg_levels_
              "-mg_levels_pc_type ilu -mg_coarse_pc_type lu -mg_coarse_pc_factor_mat_solver_type mumps")
 
 
+# On MPI ranks (run.ranks > 1, freefem/petsc_ranks.idp) the same multigrid over the ranks: PETSc's
+# ILU is sequential, so each level's smoother is block Jacobi with ILU(0) on each rank's block
+# (on one rank the one-rank smoother itself); the coarsest level's LU is MUMPS's, parallel.
+MULTIGRID_ON_RANKS = MULTIGRID.replace("-mg_levels_pc_type ilu", "-mg_levels_pc_type bjacobi -mg_levels_sub_pc_type ilu")
+
+
 def option_pairs(options: str) -> list[tuple[str, str]]:
     words = options.split()
     return list(zip(words, words[1:]))
@@ -51,11 +57,14 @@ def factorising(options: str) -> bool:
                for a, b in option_pairs(options))
 
 
-def default_options(dimension: int, fields: tuple[str, ...]) -> str:
+def default_options(dimension: int, fields: tuple[str, ...], ranks: int = 1) -> str:
     """run.petsc_options when blank, chosen by measurement (docs/solvers.md, results/solvers/):
-    geometric multigrid in 3D, MUMPS's LU in 2D. The field split with AMG needs 30-300
+    geometric multigrid in 3D, MUMPS's LU in 2D; on several ranks the distributed multigrid
+    in both (docs/scale-out.md), a factorisation of the whole being what ranks are to avoid. The field split with AMG needs 30-300
     Krylov iterations a Newton step once the electric contact conductance couples u_nu to
     phi with its gain k_e/eps_e; multigrid on the whole coupled system, its coarse levels
     Galerkin products of the tangent, sees that coupling on every level. `fields` is the
     seam for choices of their own."""
+    if ranks > 1:
+        return MULTIGRID_ON_RANKS
     return MULTIGRID if dimension == 3 else MUMPS_LU

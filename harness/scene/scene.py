@@ -118,13 +118,14 @@ class Scene:
             return ""
         given = str(getattr(self.sections.run, entry.options_key)).strip()
         fields = tuple(f.name for f in Unknowns(self.effects, self.dimension).newton)
-        return given or (entry.default_options(self.dimension, fields) if entry.default_options else "")
+        defaults = entry.default_options(self.dimension, fields, self.sections.run.ranks) if entry.default_options else ""
+        return given or defaults
 
     @property
     def petsc_options(self) -> str:
         """run.petsc_options, or the measured default of the scene's dimension when blank."""
         fields = tuple(f.name for f in Unknowns(self.effects, self.dimension).newton)
-        return self.sections.run.petsc_options.strip() or default_options(self.dimension, fields)
+        return self.sections.run.petsc_options.strip() or default_options(self.dimension, fields, self.sections.run.ranks)
 
     @property
     def multigrid_levels(self) -> int:
@@ -133,9 +134,10 @@ class Scene:
 
     @property
     def coarse_levels(self) -> int:
-        """Halvings of n down to the coarse space's mesh on ranks (0: one-level Schwarz, or one rank)."""
+        """Halvings of n down to the coarse space's mesh on ranks (0: one-level Schwarz, one rank, or
+        PETSc, whose preconditioner is run.petsc_options' business)."""
         run = self.sections.run
-        if run.ranks == 1 or run.coarse_space != "nested":
+        if run.ranks == 1 or run.coarse_space != "nested" or self.solver.options_key:
             return 0
         return run.coarse_levels or (3 if self.dimension == 2 else 2)
 

@@ -23,54 +23,91 @@ def chain_levels(levels: Sequence[int]) -> tuple[int, ...]:
     return tuple(sorted({*(2 ** k for k in range(1, 12) if 2 ** k <= max(levels)), *levels}))
 
 
+def chain_runs(case: Path, name: str, overrides: Sequence[str], levels: tuple[int, ...], layout: Layout) -> dict[int, Any]:
+    """One forced warm chain up to the finest of `levels` of `case` under `overrides`: its runs by level."""
+    scene = load_scene(case, [f"scene.name={name}", *overrides])
+    with BackgroundMeshes(scene, chain_levels(levels), layout) as meshes:
+        return runs_of(run_levels(scene, meshes, layout, force=True, progress=quiet,
+                                  chain=scene.initial_guess == "coarser"))
+
+
+def rank_row(run: Any, base: Any, reference: list[np.ndarray]) -> dict[str, Any]:
+    """A level's figures on its ranks against the first configuration's run `base` (state `reference`)."""
+    record = run.record
+    parallel = record.parallel or {}
+    # Per field (state.txt holds them in the record's order): max |a - b| / max |a|.
+    differences = {name: float(np.abs(a - b).max() / max(np.abs(a).max(), 1e-300))
+                   for name, a, b in zip(record.fields, reference, read_state(run.directory / "state.txt"))}
+    per_rank = parallel.get("peak_rss_mb_per_rank", [record.peak_rss_mb])
+    wall = parallel.get("wall", {})
+    return {
+        "dofs": record.dofs, "newton_iterations": record.newton_iterations,
+        "krylov_iterations": " ".join(str(k) for k in (record.linear_iterations or [])[1:]),
+        "factorisations": record.factorisations,
+        "wall_s": record.wall_s,
+        "solve_wall_s": wall.get("total_s", record.wall_s),
+        "factorisation_s": wall.get("factorisation_s", record.factorisation_s),
+        "krylov_s": wall.get("krylov_s", record.solve_s),
+        "peak_rss_mb_max_rank": max(per_rank),
+        "peak_rss_mb_per_rank": " ".join(f"{m:.1f}" for m in per_rank),
+        "memory_vs_1_rank": max(per_rank) / max(base.record.peak_rss_mb or 1.0, 1e-9),
+        # The sequential pass that writes the outputs (launcher.py): assembly, no factorisation.
+        "post_pass_peak_rss_mb": record.post_pass_peak_rss_mb if record.ranks else None,
+        "max_rel_diff_vs_1_rank": max(differences.values()),
+        **{f"rel_diff_{name}": value for name, value in differences.items()},
+        "linear_solver": record.linear_solver,
+    }
+
+
 def mpi_table(case: Path, levels: tuple[int, ...], ranks: Sequence[int], layout: Layout,
               coarse_spaces: Sequence[str] = ("none",)) -> pd.DataFrame:
     """Each configuration's warm chain up to the finest level: one rank, then each rank count
     of `ranks` past the first with each Schwarz coarse space of `coarse_spaces`
     (run.coarse_space); one row per (level, configuration), compared with the first."""
-    chained = chain_levels(levels)
     configs = [(count, space) for count in ranks for space in (("none",) if count == 1 else coarse_spaces)]
     runs: dict[tuple[int, str], Any] = {}
     for count, space in configs:
         # Ranks factorise their subdomains (MUMPS_seq), whatever the case solves one rank with.
         name = f"scale_{case.stem}_ranks{count}" + ("" if space == "none" else f"_{space}")
-        scene = load_scene(case, [f"scene.name={name}", f"run.ranks={count}", 'run.linear_solver="mumps"',
-                                  f'run.coarse_space="{space}"'])
-        with BackgroundMeshes(scene, chained, layout) as meshes:
-            runs[count, space] = runs_of(run_levels(scene, meshes, layout, force=True, progress=quiet,
-                                                    chain=scene.initial_guess == "coarser"))
+        runs[count, space] = chain_runs(case, name, [f"run.ranks={count}", 'run.linear_solver="mumps"',
+                                                     f'run.coarse_space="{space}"'], levels, layout)
     rows = []
     for n in levels:
         base = runs[configs[0]][n]
         reference = read_state(base.directory / "state.txt")
         for count, space in configs:
-            run = runs[count, space][n]
-            record = run.record
-            parallel = record.parallel or {}
-            # Per field (state.txt holds them in the record's order): max |a - b| / max |a|.
-            differences = {name: float(np.abs(a - b).max() / max(np.abs(a).max(), 1e-300))
-                           for name, a, b in zip(record.fields, reference, read_state(run.directory / "state.txt"))}
-            per_rank = parallel.get("peak_rss_mb_per_rank", [record.peak_rss_mb])
-            wall = parallel.get("wall", {})
-            rows.append({
-                "n": n, "ranks": count, "coarse_space": space, "dofs": record.dofs,
-                "newton_iterations": record.newton_iterations,
-                "krylov_iterations": " ".join(str(k) for k in (record.linear_iterations or [])[1:]),
-                "factorisations": record.factorisations,
-                "wall_s": record.wall_s,
-                "solve_wall_s": wall.get("total_s", record.wall_s),
-                "factorisation_s": wall.get("factorisation_s", record.factorisation_s),
-                "krylov_s": wall.get("krylov_s", record.solve_s),
-                "peak_rss_mb_max_rank": max(per_rank),
-                "peak_rss_mb_per_rank": " ".join(f"{m:.1f}" for m in per_rank),
-                "memory_vs_1_rank": max(per_rank) / max(base.record.peak_rss_mb or 1.0, 1e-9),
-                # The sequential pass that writes the outputs (launcher.py): assembly, no factorisation.
-                "post_pass_peak_rss_mb": record.post_pass_peak_rss_mb if count > 1 else None,
-                "max_rel_diff_vs_1_rank": max(differences.values()),
-                **{f"rel_diff_{name}": value for name, value in differences.items()},
-                "linear_solver": record.linear_solver,
-            })
+            rows.append({"n": n, "ranks": count, "coarse_space": space, **rank_row(runs[count, space][n], base, reference)})
     return pd.DataFrame(rows)
+
+
+def petsc_table(case: Path, levels: tuple[int, ...], ranks: Sequence[int], layout: Layout, repeats: int) -> pd.DataFrame:
+    """PETSc on each rank count of `ranks` (the first the reference; run.petsc_options the
+    scene's or the ranks' default, freefem/petsc_ranks.idp), each warm chain run `repeats`
+    times: the medians of each level's wall time and largest per-rank peak, the rest (Krylov
+    iterations, agreement) of the last run, which the others repeat."""
+    runs: dict[int, list[dict[int, Any]]] = {}
+    for count in ranks:
+        runs[count] = [chain_runs(case, f"scale_petsc_{case.stem}_ranks{count}",
+                                  [f"run.ranks={count}", 'run.linear_solver="petsc"'], levels, layout)
+                       for _ in range(repeats)]
+    rows = []
+    for n in levels:
+        base = runs[ranks[0]][-1][n]
+        reference = read_state(base.directory / "state.txt")
+        for count in ranks:
+            row = rank_row(runs[count][-1][n], base, reference)
+            walls = [chain[n].record.wall_s for chain in runs[count]]
+            peaks = [max((chain[n].record.parallel or {}).get("peak_rss_mb_per_rank", [chain[n].record.peak_rss_mb]))
+                     for chain in runs[count]]
+            row.update(repeats=repeats, wall_s=float(np.median(walls)), wall_s_all=" ".join(f"{w:.3g}" for w in walls),
+                       peak_rss_mb_max_rank=float(np.median(peaks)))
+            rows.append({"n": n, "ranks": count, **row})
+    table = pd.DataFrame(rows)
+    one = table[table["ranks"] == ranks[0]].set_index("n")
+    table["wall_vs_1_rank"] = [w / one.loc[n, "wall_s"] for n, w in zip(table["n"], table["wall_s"])]
+    table["memory_vs_1_rank"] = [m / one.loc[n, "peak_rss_mb_max_rank"]
+                                 for n, m in zip(table["n"], table["peak_rss_mb_max_rank"])]
+    return table
 
 
 # Columns near zero whose round-off is judged against the row's own scale (the one its
