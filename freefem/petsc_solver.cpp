@@ -520,15 +520,22 @@ long bulkCreate(long const &n) {
 // The block A (FreeFEM's, of rows rowOffset.. and columns colOffset.. of K) as a chunk: its
 // entries bucketed by row (FreeFEM keeps them in the order assembly made them), each row's
 // columns sorted. FreeFEM's own sort (CSR()) is not used: it is a heap sort of the whole.
+// A's FreeFEM matrix if it is a full (not half) sparse matrix that fits in K at (rowOffset,
+// colOffset) and K is not assembled yet; else none, the reason in lastMessage.
+MatriceMorse<double> *blockInside(const Bulk &b, Matrice_Creuse<double> *A, long rowOffset, long colOffset) {
+  MatriceMorse<double> *m = A->A ? dynamic_cast<MatriceMorse<double> *>(&*A->A) : nullptr;
+  if (!m || m->half || b.J || rowOffset < 0 || colOffset < 0 || rowOffset + m->n > b.n || colOffset + m->m > b.n) {
+    lastMessage = "a bulk block must be a full sparse matrix inside K, given before K is assembled";
+    return nullptr;
+  }
+  return m;
+}
+
 long bulkAdd(long const &id, Matrice_Creuse<double> *const &A, long const &rowOffset, long const &colOffset) {
   Bulk *b = bulkOf(id);
   if (!b) return fail(PETSC_ERR_ARG_OUTOFRANGE, "bulk block");
-  MatriceMorse<double> *m = A->A ? dynamic_cast<MatriceMorse<double> *>(&*A->A) : nullptr;
-  if (!m || m->half || b->J || rowOffset < 0 || colOffset < 0 || rowOffset + m->n > b->n ||
-      colOffset + m->m > b->n) {
-    lastMessage = "a bulk block must be a full sparse matrix inside K, given before K is assembled";
-    return fail(PETSC_ERR_ARG_WRONG, "bulk block");
-  }
+  MatriceMorse<double> *m = blockInside(*b, A, rowOffset, colOffset);
+  if (!m) return fail(PETSC_ERR_ARG_WRONG, "bulk block");
   Bulk::Chunk c;
   c.row0 = (PetscInt)rowOffset;
   c.col0 = (PetscInt)colOffset;
@@ -565,12 +572,8 @@ long bulkAdd(long const &id, Matrice_Creuse<double> *const &A, long const &rowOf
 long bulkReserve(long const &id, Matrice_Creuse<double> *const &A, long const &rowOffset, long const &colOffset) {
   Bulk *b = bulkOf(id);
   if (!b) return fail(PETSC_ERR_ARG_OUTOFRANGE, "bulk reserve");
-  MatriceMorse<double> *m = A->A ? dynamic_cast<MatriceMorse<double> *>(&*A->A) : nullptr;
-  if (!m || m->half || b->J || rowOffset < 0 || colOffset < 0 || rowOffset + m->n > b->n ||
-      colOffset + m->m > b->n) {
-    lastMessage = "room in K is made for a full sparse matrix inside K, before K is assembled";
-    return fail(PETSC_ERR_ARG_WRONG, "bulk reserve");
-  }
+  MatriceMorse<double> *m = blockInside(*b, A, rowOffset, colOffset);
+  if (!m) return fail(PETSC_ERR_ARG_WRONG, "bulk reserve");
   for (size_t k = 0; k < (size_t)m->nnz; ++k)
     b->reserved.emplace_back((PetscInt)(m->i[k] + rowOffset), (PetscInt)(m->j[k] + colOffset));
   return 0;
