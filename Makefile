@@ -18,16 +18,19 @@ CLUSTER_FLAGS ?=
 convergence: $(STAMP) freefem
 	$(PY) -m harness convergence cases/paper.toml
 
-# The paper's block in 3D on both branches, h = 1/2 ... 1/32 against h = 1/32 (PETSc's geometric
-# multigrid at the finest levels; ~4 min and ~4 GB each), into results/paper3d/ and
-# results/paper3d_pressed/.
+# The paper's block in 3D on both branches, h = 1/2 ... 1/64 against h = 1/64 (PETSc's geometric
+# multigrid at the finest levels; h = 1/64 has 5.4 M unknowns and peaks near 15 GB), into
+# results/paper3d/ and results/paper3d_pressed/, one branch after the other. A machine whose
+# large runs take turns names its lock: make paper3d PAPER3D_LOCK="flock /work/bigmem.lock".
+PAPER3D_LOCK ?=
 .PHONY: paper3d
 paper3d: $(STAMP) freefem
-	$(PY) -m harness convergence cases/paper3d.toml
-	$(PY) -m harness convergence cases/paper3d.toml --set scene.coarsest_guess=pressed --set scene.name=paper3d_pressed
+	$(PAPER3D_LOCK) $(PY) -m harness convergence cases/paper3d.toml
+	$(PAPER3D_LOCK) $(PY) -m harness convergence cases/paper3d.toml --set scene.coarsest_guess=pressed --set scene.name=paper3d_pressed
 
 # A convergence study of every scene in cases/ and one table of their unknowns, dofs,
-# times and slopes (results/scenes/summary.csv).
+# times and slopes (results/scenes/summary.csv). paper3d's study is make paper3d's zero branch,
+# to h = 1/64 (~15 GB; its levels are reused when make paper3d has run them).
 scenes: $(STAMP) freefem
 	$(PY) -m harness scenes $(CLUSTER_FLAGS)
 

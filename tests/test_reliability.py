@@ -684,6 +684,25 @@ def test_the_multigrid_memory_estimate_predicts_each_coarse_level_within_25_perc
     assert peak <= need <= 1.25 * peak, (record.peak_rss_mb, need / 2**20)
 
 
+@pytest.mark.parametrize("branch", ["paper3d", "paper3d_pressed"])
+def test_the_memory_guard_predicts_every_level_of_the_committed_3d_study_within_25_percent(branch):
+    """Every level of `make paper3d`'s committed study, h = 1/2 ... 1/64 (5.4 M unknowns), each
+    branch: the guard's estimate of the multigrid's run is at or above the peak the run
+    recorded (VmHWM, summary.json), by at most 25 %; no FreeFEM run here, the study's own
+    measurements are the reference."""
+    from harness.scene.scene import load_scene
+
+    summary = json.loads((REPO / "results" / branch / "summary.json").read_text())
+    scene = load_scene(REPO / "cases" / "paper3d.toml")
+    assert max(map(int, summary["runs"])) == 64
+    for n, run in summary["runs"].items():
+        dofs, need = guards.memory_estimate(scene.geometry.width, scene.geometry.height, int(n), scene.effects,
+                                            scene.element, guards.geometry_depth(scene.geometry), scene.factorises,
+                                            scene.multigrid_levels > 0)
+        peak = run["peak_rss_mb"] * 2**20
+        assert dofs == run["dofs"] and peak <= need <= 1.25 * peak, (n, run["peak_rss_mb"], need / 2**20)
+
+
 def test_an_error_before_freefem_answers_its_version_leaves_no_temp_dir_or_process(tmp_path):
     """FreeFEM's version is asked in a thread from the start (harness/core/freefem.py, issue 23's
     overhead): an input error found before it answers still ends with one line and exit 2,

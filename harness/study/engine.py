@@ -24,7 +24,7 @@ import time
 from concurrent.futures import ProcessPoolExecutor, ThreadPoolExecutor, as_completed
 from dataclasses import dataclass
 from pathlib import Path
-from typing import Callable, Iterator, Mapping, Sequence
+from typing import Iterator, Mapping, Sequence
 
 from harness.core import freefem, signals
 from harness.core.contract import Failure
@@ -34,8 +34,7 @@ from harness.mesh.mesh import GMSH, build_graded_mesh, build_mesh, remove_partia
 from harness.run.record import RunRecord
 from harness.run.run import LevelRun, RunResult, WarmStart, read_record, run_level
 from harness.scene.scene import Scene
-
-Progress = Callable[[str], None]
+from harness.study.progress import Progress, watching
 
 
 def stderr_line(text: str) -> None:
@@ -263,7 +262,7 @@ def _chain(
                         # The next level's mesh or launch failed while this level runs: this
                         # level's own failure, if any, comes first (failures in level order).
                         ahead = exc
-                run = cached or current.wait()
+                run = cached or _waited(current, f"[{count}/{len(levels)}] n={n}", progress)
                 if ahead is not None:
                     raise ahead
             except RunError as exc:
@@ -280,6 +279,15 @@ def _chain(
             if level is not None:
                 level.abandon()
     return outcomes
+
+
+def _waited(level: LevelRun, label: str, progress: Progress) -> RunResult:
+    """The level's run, waited for; while it is long, its Newton steps and its process's CPU
+    time and memory are said (harness/study/progress.py): 3D h = 1/64 runs for many minutes."""
+    launched = level.launched
+    stdout = level.work / "stdout.txt" if level.work is not None else None
+    with watching(stdout, launched.proc.pid if launched is not None else None, label, progress):
+        return level.wait()
 
 
 def _mesh_ready(meshes: Mapping[int, Path], n: int) -> bool:
