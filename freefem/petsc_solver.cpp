@@ -25,6 +25,7 @@
 // or, for P1 fields, K in one pass by an element kernel whose blocks the script reads off the forms:
 //
 //   petscBulkKernelBlock(k, [rowOffset, rowComponents, colOffset, colComponents, dim], D); ...
+//   petscBulkReserve(k, Ttu, rowOffset, colOffset); ... // room for the contact tangent's entries K lacks
 //   petscBulkKernel(k, Th);                              // then petscBulkAssemble(k) as above
 //
 // The unknowns are FreeFEM's Newton vector: the fields concatenated in order, a vector
@@ -501,6 +502,10 @@ struct Bulk {
   std::vector<PetscInt> sRows, sPtr, sCols, dPos, dRow, dCol;
   std::vector<PetscScalar> sVals, dVals;
   bool captured = false;
+  // Entries of T that K lacks, (row, column) pairs, made room for in J's pattern when K is
+  // built (petscBulkReserve): otherwise the first K + T copies J into a wider pattern.
+  // Given, they may include K's entries; once K is built, exactly J's entries outside K, sorted.
+  std::vector<std::pair<PetscInt, PetscInt>> reserved;
 };
 std::vector<Bulk *> bulks;
 
@@ -517,15 +522,22 @@ long bulkCreate(long const &n) {
 // The block A (FreeFEM's, of rows rowOffset.. and columns colOffset.. of K) as a chunk: its
 // entries bucketed by row (FreeFEM keeps them in the order assembly made them), each row's
 // columns sorted. FreeFEM's own sort (CSR()) is not used: it is a heap sort of the whole.
+// A's FreeFEM matrix if it is a full (not half) sparse matrix that fits in K at (rowOffset,
+// colOffset) and K is not assembled yet; else none, the reason in lastMessage.
+MatriceMorse<double> *blockInside(const Bulk &b, Matrice_Creuse<double> *A, long rowOffset, long colOffset) {
+  MatriceMorse<double> *m = A->A ? dynamic_cast<MatriceMorse<double> *>(&*A->A) : nullptr;
+  if (!m || m->half || b.J || rowOffset < 0 || colOffset < 0 || rowOffset + m->n > b.n || colOffset + m->m > b.n) {
+    lastMessage = "a bulk block must be a full sparse matrix inside K, given before K is assembled";
+    return nullptr;
+  }
+  return m;
+}
+
 long bulkAdd(long const &id, Matrice_Creuse<double> *const &A, long const &rowOffset, long const &colOffset) {
   Bulk *b = bulkOf(id);
   if (!b) return fail(PETSC_ERR_ARG_OUTOFRANGE, "bulk block");
-  MatriceMorse<double> *m = A->A ? dynamic_cast<MatriceMorse<double> *>(&*A->A) : nullptr;
-  if (!m || m->half || b->J || rowOffset < 0 || colOffset < 0 || rowOffset + m->n > b->n ||
-      colOffset + m->m > b->n) {
-    lastMessage = "a bulk block must be a full sparse matrix inside K, given before K is assembled";
-    return fail(PETSC_ERR_ARG_WRONG, "bulk block");
-  }
+  MatriceMorse<double> *m = blockInside(*b, A, rowOffset, colOffset);
+  if (!m) return fail(PETSC_ERR_ARG_WRONG, "bulk block");
   Bulk::Chunk c;
   c.row0 = (PetscInt)rowOffset;
   c.col0 = (PetscInt)colOffset;
@@ -556,9 +568,23 @@ long bulkAdd(long const &id, Matrice_Creuse<double> *const &A, long const &rowOf
   return 0;
 }
 
+// Room in K's pattern for the entries of A (FreeFEM's, of rows rowOffset.. and columns
+// colOffset.. of K), zeros in K: the element kernel makes it (kernelAssemble); K from blocks
+// ignores it and widens its pattern at the first K + T instead.
+long bulkReserve(long const &id, Matrice_Creuse<double> *const &A, long const &rowOffset, long const &colOffset) {
+  Bulk *b = bulkOf(id);
+  if (!b) return fail(PETSC_ERR_ARG_OUTOFRANGE, "bulk reserve");
+  MatriceMorse<double> *m = blockInside(*b, A, rowOffset, colOffset);
+  if (!m) return fail(PETSC_ERR_ARG_WRONG, "bulk reserve");
+  for (size_t k = 0; k < (size_t)m->nnz; ++k)
+    b->reserved.emplace_back((PetscInt)(m->i[k] + rowOffset), (PetscInt)(m->j[k] + colOffset));
+  return 0;
+}
+
 // K from its chunks into an exactly preallocated PETSc matrix, each chunk freed once in: row by
 // row the chunks in the order of their columns, so each row is filled from left to right.
 PetscErrorCode assembleChunks(Bulk &b) {
+  std::vector<std::pair<PetscInt, PetscInt>>().swap(b.reserved);
   std::stable_sort(b.chunks.begin(), b.chunks.end(),
                    [](const Bulk::Chunk &x, const Bulk::Chunk &y) { return x.col0 < y.col0; });
   std::vector<PetscInt> counts(b.n, 0);
@@ -706,6 +732,11 @@ PetscErrorCode extendPattern(Bulk &b, Mat t) {
   return 0;
 }
 
+// Whether (row, col) is one of J's reserved entries, outside K's own pattern.
+bool isReserved(const Bulk &b, PetscInt row, PetscInt col) {
+  return std::binary_search(b.reserved.begin(), b.reserved.end(), std::make_pair(row, col));
+}
+
 // Whether every entry of t has a place in a's pattern.
 PetscErrorCode within(Mat t, Mat a, bool *inside) {
   PetscInt n;
@@ -741,7 +772,10 @@ PetscErrorCode sumOperator(Bulk &b, Matrice_Creuse<double> *T, bool *widened) {
   bool inside = false;
   PetscCall(within(t, b.J, &inside));
   *widened = !inside;
-  if (!inside) PetscCall(extendPattern(b, t));
+  if (!inside) {
+    std::cout << "bulk: K's pattern widened for the contact tangent (a copy of the operator)" << std::endl;
+    PetscCall(extendPattern(b, t));
+  }
   if (b.whole.size() != (size_t)b.n) b.whole.assign(b.n, 0);
   for (PetscInt i : b.dirichlet)
     if (!b.whole[i]) { b.whole[i] = 1; b.captured = false; }
@@ -827,9 +861,10 @@ PetscErrorCode writeK(Bulk &b, const std::string &file) {
   PetscCall(openRows(b.J, &r));
   out << "#  the bulk matrix K held by PETSc, as FreeFEM writes a sparse matrix\n"
       << "#    n       m        nnz     half     fortran   state\n"
-      << b.n << " " << b.n << " " << r.ia[b.n] << " 0 0 2\n";
+      << b.n << " " << b.n << " " << r.ia[b.n] - (PetscInt)b.reserved.size() << " 0 0 2\n";
   for (PetscInt i = 0; i < b.n; ++i)
-    for (PetscInt p = r.ia[i]; p < r.ia[i + 1]; ++p) out << i << " " << r.ja[p] << " " << r.a[p] << "\n";
+    for (PetscInt p = r.ia[i]; p < r.ia[i + 1]; ++p)
+      if (!isReserved(b, i, r.ja[p])) out << i << " " << r.ja[p] << " " << r.a[p] << "\n";
   PetscCall(closeRows(&r));
   if (!out) {
     lastMessage = "cannot write " + file;
@@ -946,6 +981,34 @@ double elementGradients(const M &th, int k, double grad[4][3]) {
   return std::abs(det) / (dim == 2 ? 2.0 : 6.0);
 }
 
+// The reserved entries (petscBulkReserve) that K's pattern lacks, sorted, each counted in its
+// row and the row marked irregular: its K columns no longer sit block after block.
+PetscErrorCode reserveOutsideK(Bulk &b, const std::vector<const KernelBlock *> &order, const std::vector<PetscInt> &ptr,
+                               const std::vector<PetscInt> &adj, PetscInt nv, std::vector<PetscInt> *counts,
+                               std::vector<char> *irregular) {
+  auto inK = [&](const std::pair<PetscInt, PetscInt> &e) {
+    for (const KernelBlock *k : order) {
+      if (e.first < k->rowOffset || e.first >= k->rowOffset + nv * k->rowComponents ||
+          e.second < k->colOffset || e.second >= k->colOffset + nv * k->colComponents) continue;
+      PetscInt v = (e.first - k->rowOffset) / k->rowComponents, w = (e.second - k->colOffset) / k->colComponents;
+      return std::binary_search(adj.begin() + ptr[v], adj.begin() + ptr[v + 1], w);
+    }
+    return false;
+  };
+  std::sort(b.reserved.begin(), b.reserved.end());
+  b.reserved.erase(std::unique(b.reserved.begin(), b.reserved.end()), b.reserved.end());
+  b.reserved.erase(std::remove_if(b.reserved.begin(), b.reserved.end(), inK), b.reserved.end());
+  b.reserved.shrink_to_fit();
+  irregular->assign(b.n, 0);
+  for (const std::pair<PetscInt, PetscInt> &e : b.reserved) {
+    ++(*counts)[e.first];
+    (*irregular)[e.first] = 1;
+  }
+  if (!b.reserved.empty())
+    std::cout << "bulk: room made in K for " << b.reserved.size() << " entries of the contact tangent" << std::endl;
+  return 0;
+}
+
 // J = K from the registered blocks over the mesh: the pattern first (exactly the block
 // varfs'), then each element's matrices added in place into J's values.
 template <class M>
@@ -973,12 +1036,17 @@ PetscErrorCode kernelAssemble(Bulk &b, const std::vector<KernelBlock> &blocks, c
     for (int v = 0; v < th.nv; ++v)
       for (int c = 0; c < k->rowComponents; ++c)
         counts[k->rowOffset + (PetscInt)v * k->rowComponents + c] += (ptr[v + 1] - ptr[v]) * k->colComponents;
+  std::vector<char> irregular;
+  PetscCall(reserveOutsideK(b, order, ptr, adj, th.nv, &counts, &irregular));
   PetscCall(MatCreate(PETSC_COMM_SELF, &b.J));
   PetscCall(MatSetSizes(b.J, b.n, b.n, b.n, b.n));
   PetscCall(MatSetType(b.J, MATSEQAIJ));
   PetscCall(MatSeqAIJSetPreallocation(b.J, 0, counts.data()));
   PetscCall(MatSetOption(b.J, MAT_NEW_NONZERO_ALLOCATION_ERR, PETSC_TRUE));
   {
+    const PetscScalar zero = 0;
+    for (const std::pair<PetscInt, PetscInt> &e : b.reserved)
+      PetscCall(MatSetValues(b.J, 1, &e.first, 1, &e.second, &zero, INSERT_VALUES));
     std::vector<PetscInt> cols;
     std::vector<PetscScalar> zeros;
     for (size_t first = 0; first < order.size();) {   // the blocks of one row field
@@ -1039,7 +1107,12 @@ PetscErrorCode kernelAssemble(Bulk &b, const std::vector<KernelBlock> &blocks, c
             for (int cc = 0; cc < nc; ++cc) {
               double sum = 0;
               for (int a = 0; a < ch; ++a) sum += left[cc * ch + a] * phi[j][a];
-              values[rank[i][j] * nc + cc] += sum;
+              if (irregular[row]) {   // reserved entries shift K's columns: look the column up
+                PetscInt col = kb.colOffset + (PetscInt)vert[j] * nc + cc;
+                r.a[std::lower_bound(r.ja + r.ia[row], r.ja + r.ia[row + 1], col) - r.ja] += sum;
+              } else {
+                values[rank[i][j] * nc + cc] += sum;
+              }
             }
         }
       }
@@ -1749,6 +1822,7 @@ static void init() {
   Global.Add("petscBulkWrite", "(", new OneOperator2_<long, long, string *>(bulkWrite));
   Global.Add("petscBulkDestroy", "(", new OneOperator1_<long, long>(bulkDestroy));
   Global.Add("petscBulkKernelBlock", "(", new OneOperator3_<long, long, KN<long> *, KN<double> *>(bulkKernelBlock));
+  Global.Add("petscBulkReserve", "(", new OneOperator4_<long, long, Matrice_Creuse<double> *, long, long>(bulkReserve));
   Global.Add("petscBulkKernel", "(", new OneOperator2_<long, long, pmesh>(bulkKernel<Mesh>));
   Global.Add("petscBulkKernel", "(", new OneOperator2_<long, long, pmesh3>(bulkKernel<Mesh3>));
   Global.Add("petscStats", "(", new OneOperator2_<long, long, KN<double> *>(stats));

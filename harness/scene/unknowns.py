@@ -140,6 +140,11 @@ class Unknowns:
             if k != "u" and on[k]:
                 tangent.append(f"matrix T{k}u = vT{k}u(Uh, {f.space});")
                 blocks.add((k, "u"))
+        # Room in the plugin's K for the blocks of T that K lacks (a field's dependence on u
+        # through the contact conductance): the first K + T then needs no wider copy of K.
+        reserve = " ".join(f"{{ matrix R{r}{c} = vT{r}{c}({space[c]}, {space[r]}); "
+                           f"if (petscBulkReserve(id, R{r}{c}, bulkOffset{r}, bulkOffset{c}) < 0) exit(exitInternal); }}"
+                           for r, c in sorted(blocks) if r != c)
         for f in self.fields:
             body = f"r = vR{f.low}(0, {f.space});" if on[f.low] else "r = 0;"
             residual.append(f"macro contactR{f.low}(r) {body} //")
@@ -163,6 +168,7 @@ class Unknowns:
             f"macro staggeredThetaLoads() {staggered} //" if self.staggered else "",
             f"macro contactBlocks() {' '.join(tangent)} //",
             f"macro contactMatrix() {matrix('T{r}{c}', blocks)} //",
+            f"macro contactReserve(id) {reserve or ';'} //",
             *residual,
             f'string newtonFieldNames = "{", ".join(f.name for f in self.newton)}";',
             f'string fieldsJson = "[{", ".join(quote + f.name + quote for f in self.fields)}]";',
