@@ -352,6 +352,21 @@ PetscErrorCode fieldInterpolation(const Context &c, Mat nodal, PetscInt fineNode
   return 0;
 }
 
+// The multigrid's options, its levels set (one rank and the ranks alike). One level (no coarser
+// mesh): PCMG names its only solver mg_levels_0_; it is the coarse solve, so it takes
+// -mg_coarse_ options, as it would below a finer level.
+PetscErrorCode multigridOptions(Context &c, PC pc, PetscInt levels) {
+  PetscCall(PCSetFromOptions(pc));
+  c.oneLevel = levels == 1;
+  if (levels > 1) return 0;
+  KSP coarse;
+  const char *prefix = nullptr;
+  PetscCall(PCMGGetCoarseSolve(pc, &coarse));
+  PetscCall(PCGetOptionsPrefix(pc, &prefix));
+  PetscCall(KSPSetOptionsPrefix(coarse, (std::string(prefix ? prefix : "") + "mg_coarse_").c_str()));
+  return KSPSetFromOptions(coarse);
+}
+
 // The levels on a PCMG (-pc_type mg, or one of a composite's), from the nodal interpolations.
 PetscErrorCode attachLevels(Context &c, PC pc) {
   PetscBool mg = PETSC_FALSE;
@@ -377,17 +392,7 @@ PetscErrorCode attachLevels(Context &c, PC pc) {
   }
   PetscCall(PCMGSetGalerkin(pc, PC_MG_GALERKIN_BOTH));
   std::cout << "multigrid: " << levels << " levels" << std::endl;
-  PetscCall(PCSetFromOptions(pc));
-  c.oneLevel = levels == 1;
-  if (levels > 1) return 0;
-  // One level (no coarser mesh): PCMG names its only solver mg_levels_0_; it is the coarse
-  // solve, so it takes -mg_coarse_ options, as it would below a finer level.
-  KSP coarse;
-  const char *prefix = nullptr;
-  PetscCall(PCMGGetCoarseSolve(pc, &coarse));
-  PetscCall(PCGetOptionsPrefix(pc, &prefix));
-  PetscCall(KSPSetOptionsPrefix(coarse, (std::string(prefix ? prefix : "") + "mg_coarse_").c_str()));
-  return KSPSetFromOptions(coarse);
+  return multigridOptions(c, pc, levels);
 }
 
 // "-pc_type gamg -mat_mumps_icntl_14 -50" with prefix p_: "-p_pc_type gamg -p_mat_mumps_icntl_14 -50"
@@ -400,6 +405,58 @@ std::string prefixed(const std::string &options, const std::string &prefix) {
     out += w + " ";
   }
   return out;
+}
+
+// One step of a function that returns PETSc's code and names, in *step, the step that failed.
+#define STEP(call, name) do { *step = (name); ierr = (call); if (ierr) return ierr; } while (0)
+
+// Context c's Krylov solver on `comm`, with the defaults an inexact Newton needs: GMRES on the
+// true (unpreconditioned) residual, which right preconditioning gives, so that rtol means
+// ||b - A x|| <= rtol ||b||; then the user's options, and the fields on every leaf of its PC.
+// On failure PETSc's code, *step naming the step that failed (one rank and the ranks alike).
+PetscErrorCode newKrylov(Context *c, MPI_Comm comm, const std::string &options, std::string *step) {
+  PetscErrorCode ierr;
+  PC pc;
+  STEP(KSPCreate(comm, &c->ksp), "KSP");
+  STEP(KSPSetOptionsPrefix(c->ksp, c->prefix.c_str()), "options");
+  STEP(KSPSetType(c->ksp, KSPGMRES), "KSP type");
+  STEP(KSPSetPCSide(c->ksp, PC_RIGHT), "PC side");
+  STEP(KSPGMRESSetRestart(c->ksp, 100), "GMRES restart");
+  STEP(KSPSetTolerances(c->ksp, 1e-8, 0.0, 1e50, 1000), "tolerances");
+  STEP(KSPSetFromOptions(c->ksp), "options \"" + options + "\"");
+  STEP(KSPGetPC(c->ksp, &pc), "fields");
+  STEP(eachLeaf(*c, pc, attachFields), "fields");
+  return 0;
+}
+
+// The operator into c's solver, for a solve to rtol: the preconditioner's matrix is the
+// operator itself when `rebuild` (with the rigid-body modes where the displacement is the only
+// field), else the last one, kept; the contact zone (`zone`, one rank) and the multigrid's levels
+// (`levels`) attached to the PC's leaves at the first solve. On failure PETSc's code, *step
+// naming the step (one rank and the ranks alike).
+PetscErrorCode useOperator(Context *c, bool rebuild, double rtol, bool zone, PetscErrorCode (*levels)(Context &, PC),
+                           std::string *step) {
+  PetscErrorCode ierr;
+  PC pc;
+  if (rebuild) {
+    STEP(MatDestroy(&c->pre), "matrix");
+    STEP(PetscObjectReference((PetscObject)c->op), "matrix");
+    c->pre = c->op;
+    if (c->rigid && c->fields.size() == 1) STEP(MatSetNearNullSpace(c->pre, c->rigid), "near-null space");
+  }
+  STEP(KSPSetOperators(c->ksp, c->op, c->pre), "operators");
+  if (zone && !c->zone) {
+    STEP(KSPGetPC(c->ksp, &pc), "contact zone");
+    STEP(eachLeaf(*c, pc, attachZone), "contact zone");
+  }
+  if (!c->levelsAttached) {
+    STEP(KSPGetPC(c->ksp, &pc), "multigrid levels");
+    STEP(eachLeaf(*c, pc, levels), "multigrid levels");
+    c->levelsAttached = true;
+  }
+  STEP(KSPSetReusePreconditioner(c->ksp, rebuild ? PETSC_FALSE : PETSC_TRUE), "reuse");
+  STEP(KSPSetTolerances(c->ksp, rtol, 0.0, PETSC_DEFAULT, PETSC_DEFAULT), "tolerances");
+  return 0;
 }
 
 long create(string *const &options, string *const &names, KN<long> *const &sizes, KN<long> *const &blocks,
@@ -443,18 +500,8 @@ long create(string *const &options, string *const &names, KN<long> *const &sizes
   }
   c->size = offset;
   for (long i = 0; i < contact->N() && i < offset; ++i) if ((*contact)[i] != 0) c->seed.push_back(i);
-  TRY(KSPCreate(PETSC_COMM_SELF, &c->ksp), "KSP");
-  TRY(KSPSetOptionsPrefix(c->ksp, c->prefix.c_str()), "options");
-  // Defaults an inexact Newton needs: GMRES on the true (unpreconditioned) residual, which
-  // right preconditioning gives, so that rtol means ||b - A x|| <= rtol ||b||.
-  TRY(KSPSetType(c->ksp, KSPGMRES), "KSP type");
-  TRY(KSPSetPCSide(c->ksp, PC_RIGHT), "PC side");
-  TRY(KSPGMRESSetRestart(c->ksp, 100), "GMRES restart");
-  TRY(KSPSetTolerances(c->ksp, 1e-8, 0.0, 1e50, 1000), "tolerances");
-  TRY(KSPSetFromOptions(c->ksp), "options \"" + *options + "\"");
-  PC pc;
-  TRY(KSPGetPC(c->ksp, &pc), "fields");
-  TRY(eachLeaf(*c, pc, attachFields), "fields");
+  std::string step;
+  TRY(newKrylov(c, PETSC_COMM_SELF, *options, &step), step);
   contexts.push_back(c);
   return (long)contexts.size() - 1;
 }
@@ -1235,26 +1282,8 @@ long krylov(Context *c, KN<double> *b, KN<double> *x, double rtol, long reuse) {
               << ", x " << x->N() << ")" << std::endl;
     return kPetscError;
   }
-  if (rebuild) {
-    TRY(MatDestroy(&c->pre), "matrix");
-    TRY(PetscObjectReference((PetscObject)c->op), "matrix");
-    c->pre = c->op;
-    if (c->rigid && c->fields.size() == 1) TRY(MatSetNearNullSpace(c->pre, c->rigid), "near-null space");
-  }
-  TRY(KSPSetOperators(c->ksp, c->op, c->pre), "operators");
-  if (!c->zone) {
-    PC pc;
-    TRY(KSPGetPC(c->ksp, &pc), "contact zone");
-    TRY(eachLeaf(*c, pc, attachZone), "contact zone");
-  }
-  if (!c->levelsAttached) {
-    PC pc;
-    TRY(KSPGetPC(c->ksp, &pc), "multigrid levels");
-    TRY(eachLeaf(*c, pc, attachLevels), "multigrid levels");
-    c->levelsAttached = true;
-  }
-  TRY(KSPSetReusePreconditioner(c->ksp, rebuild ? PETSC_FALSE : PETSC_TRUE), "reuse");
-  TRY(KSPSetTolerances(c->ksp, rtol, 0.0, PETSC_DEFAULT, PETSC_DEFAULT), "tolerances");
+  std::string step;
+  TRY(useOperator(c, rebuild, rtol, true, attachLevels, &step), step);
   double t0 = now(), c0 = cpu();
   if (rebuild) {
     TRY(KSPSetUp(c->ksp), "set-up");
@@ -1530,17 +1559,8 @@ long ranksCreate(long const &part, string *const &options, string *const &names,
     ownedOffset += mine;
   }
   c->size = p.size;
-  TRYRANKS(KSPCreate(comm, &c->ksp), "KSP");
-  TRYRANKS(KSPSetOptionsPrefix(c->ksp, c->prefix.c_str()), "options");
-  // The one-rank defaults (create): GMRES on the true residual, by right preconditioning.
-  TRYRANKS(KSPSetType(c->ksp, KSPGMRES), "KSP type");
-  TRYRANKS(KSPSetPCSide(c->ksp, PC_RIGHT), "PC side");
-  TRYRANKS(KSPGMRESSetRestart(c->ksp, 100), "GMRES restart");
-  TRYRANKS(KSPSetTolerances(c->ksp, 1e-8, 0.0, 1e50, 1000), "tolerances");
-  TRYRANKS(KSPSetFromOptions(c->ksp), "options \"" + *options + "\"");
-  PC pc;
-  TRYRANKS(KSPGetPC(c->ksp, &pc), "fields");
-  TRYRANKS(eachLeaf(*c, pc, attachFields), "fields");
+  std::string step;
+  TRYRANKS(newKrylov(c, comm, *options, &step), step);
   return id;
 }
 
@@ -1695,15 +1715,7 @@ PetscErrorCode attachRanksLevels(Context &c, PC pc) {
   }
   PetscCall(PCMGSetGalerkin(pc, PC_MG_GALERKIN_BOTH));
   if (mpiRank() == 0) std::cout << "multigrid: " << levels << " levels on " << p.size << " dofs" << std::endl;
-  PetscCall(PCSetFromOptions(pc));
-  c.oneLevel = levels == 1;
-  if (levels > 1) return 0;
-  KSP coarse;
-  const char *prefix = nullptr;
-  PetscCall(PCMGGetCoarseSolve(pc, &coarse));
-  PetscCall(PCGetOptionsPrefix(pc, &prefix));
-  PetscCall(KSPSetOptionsPrefix(coarse, (std::string(prefix ? prefix : "") + "mg_coarse_").c_str()));
-  return KSPSetFromOptions(coarse);
+  return multigridOptions(c, pc, levels);
 }
 
 // x = (K + T)^-1 b over the ranks, to ||b - (K + T) x|| <= rtol ||b||, from x = 0; K and T
@@ -1730,21 +1742,8 @@ long ranksSolve(long const &id, long const &bulk, Matrice_Creuse<double> *const 
   c->cpuOperator = cpu() - c0;
   c->peakOperator = peakMb();
   bool rebuild = !reuse || !c->pre;
-  if (rebuild) {
-    TRYRANKS(MatDestroy(&c->pre), "matrix");
-    TRYRANKS(PetscObjectReference((PetscObject)c->op), "matrix");
-    c->pre = c->op;
-    if (c->rigid && c->fields.size() == 1) TRYRANKS(MatSetNearNullSpace(c->pre, c->rigid), "near-null space");
-  }
-  TRYRANKS(KSPSetOperators(c->ksp, c->op, c->pre), "operators");
-  if (!c->levelsAttached) {
-    PC pc;
-    TRYRANKS(KSPGetPC(c->ksp, &pc), "multigrid levels");
-    TRYRANKS(eachLeaf(*c, pc, attachRanksLevels), "multigrid levels");
-    c->levelsAttached = true;
-  }
-  TRYRANKS(KSPSetReusePreconditioner(c->ksp, rebuild ? PETSC_FALSE : PETSC_TRUE), "reuse");
-  TRYRANKS(KSPSetTolerances(c->ksp, rtol, 0.0, PETSC_DEFAULT, PETSC_DEFAULT), "tolerances");
+  std::string step;
+  TRYRANKS(useOperator(c, rebuild, rtol, false, attachRanksLevels, &step), step);
   double t0 = now(), s0 = cpu();
   c->lastSetup = 0;
   c->cpuSetup = 0;
