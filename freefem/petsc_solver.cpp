@@ -459,6 +459,28 @@ PetscErrorCode useOperator(Context *c, bool rebuild, double rtol, bool zone, Pet
   return 0;
 }
 
+// The rigid-body modes of the displacement (the first vector field, bs > 1), in its own
+// numbering, as field `is`'s near-null space: from the coordinates of its n local dofs, the
+// `mine` of them this process owns (own[i]; null: all, one rank). A standard vector is
+// sequential on one process and distributed on the ranks. On failure *step names the step.
+PetscErrorCode rigidModes(Context *c, IS is, MPI_Comm comm, PetscInt bs, PetscInt n, PetscInt mine,
+                          const KN<double> &coords, const char *own, std::string *step) {
+  PetscErrorCode ierr;
+  Vec xyz;
+  PetscScalar *v;
+  STEP(VecCreate(comm, &xyz), "coordinates");
+  STEP(VecSetSizes(xyz, mine, PETSC_DECIDE), "coordinates");
+  STEP(VecSetBlockSize(xyz, bs), "coordinates");
+  STEP(VecSetType(xyz, VECSTANDARD), "coordinates");
+  STEP(VecGetArray(xyz, &v), "coordinates");
+  for (PetscInt i = 0, q = 0; i < n; ++i) if (!own || own[i]) v[q++] = coords[i];
+  STEP(VecRestoreArray(xyz, &v), "coordinates");
+  STEP(MatNullSpaceCreateRigidBody(xyz, &c->rigid), "rigid-body modes");
+  STEP(VecDestroy(&xyz), "coordinates");
+  STEP(PetscObjectCompose((PetscObject)is, "nearnullspace", (PetscObject)c->rigid), "near-null space");
+  return 0;
+}
+
 long create(string *const &options, string *const &names, KN<long> *const &sizes, KN<long> *const &blocks,
             KN<double> *const &coords, KN<double> *const &contact) {
   TRY(start(), "start");
@@ -482,18 +504,9 @@ long create(string *const &options, string *const &names, KN<long> *const &sizes
     IS is;
     TRY(ISCreateStride(PETSC_COMM_SELF, n, offset, 1, &is), "index set");
     TRY(ISSetBlockSize(is, bs), "block size of field " + c->names[k]);
-    // The rigid-body modes of the displacement (the first vector field), in its own numbering.
     if (bs > 1 && !c->rigid && coords->N() == n) {
-      Vec xyz;
-      TRY(VecCreateSeq(PETSC_COMM_SELF, n, &xyz), "coordinates");
-      TRY(VecSetBlockSize(xyz, bs), "coordinates");
-      PetscScalar *v;
-      TRY(VecGetArray(xyz, &v), "coordinates");
-      for (PetscInt i = 0; i < n; ++i) v[i] = (*coords)[i];
-      TRY(VecRestoreArray(xyz, &v), "coordinates");
-      TRY(MatNullSpaceCreateRigidBody(xyz, &c->rigid), "rigid-body modes");
-      TRY(VecDestroy(&xyz), "coordinates");
-      TRY(PetscObjectCompose((PetscObject)is, "nearnullspace", (PetscObject)c->rigid), "near-null space");
+      std::string step;
+      TRY(rigidModes(c, is, PETSC_COMM_SELF, bs, n, n, *coords, nullptr, &step), step);
     }
     c->fields.push_back(is);
     offset += n;
@@ -1543,16 +1556,8 @@ long ranksCreate(long const &part, string *const &options, string *const &names,
     TRYRANKS(ISCreateStride(comm, mine, ownedOffset, 1, &is), "index set");
     TRYRANKS(ISSetBlockSize(is, bs), "block size of field " + c->names[k]);
     if (bs > 1 && !c->rigid && coords->N() == n) {
-      Vec xyz;
-      TRYRANKS(VecCreateMPI(comm, mine, PETSC_DECIDE, &xyz), "coordinates");
-      TRYRANKS(VecSetBlockSize(xyz, bs), "coordinates");
-      PetscScalar *v;
-      TRYRANKS(VecGetArray(xyz, &v), "coordinates");
-      for (PetscInt i = 0, q = 0; i < n; ++i) if (p.own[offset + i]) v[q++] = (*coords)[i];
-      TRYRANKS(VecRestoreArray(xyz, &v), "coordinates");
-      TRYRANKS(MatNullSpaceCreateRigidBody(xyz, &c->rigid), "rigid-body modes");
-      TRYRANKS(VecDestroy(&xyz), "coordinates");
-      TRYRANKS(PetscObjectCompose((PetscObject)is, "nearnullspace", (PetscObject)c->rigid), "near-null space");
+      std::string step;
+      TRYRANKS(rigidModes(c, is, comm, bs, n, mine, *coords, p.own.data() + offset, &step), step);
     }
     c->fields.push_back(is);
     offset += n;
