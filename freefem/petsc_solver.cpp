@@ -28,6 +28,11 @@
 //   petscBulkReserve(k, Ttu, rowOffset, colOffset); ... // room for the contact tangent's entries K lacks
 //   petscBulkKernel(k, Th);                              // then petscBulkAssemble(k) as above
 //
+// and Gamma_3's contact residual and tangent at the Newton vector x, by a kernel whose
+// integrands are the contact forms' own macros, compiled (contact_forms.hpp, generated):
+//
+//   petscContactResidual(Th, layout, law, x, r);  petscContactTangent(Th, layout, law, x, T);
+//
 // The unknowns are FreeFEM's Newton vector: the fields concatenated in order, a vector
 // field's components interleaved per node. Each field becomes an index set named after
 // it, so that "-pc_type fieldsplit -fieldsplit_u_pc_type gamg" addresses the displacement;
