@@ -32,6 +32,7 @@
 // integrands are the contact forms' own macros, compiled (contact_forms.hpp, generated):
 //
 //   petscContactResidual(Th, layout, law, x, r);  petscContactTangent(Th, layout, law, x, T);
+//   petscContactIntegrals(Th, layout, law, x, values);   // the physical checks' integrals
 //
 // The unknowns are FreeFEM's Newton vector: the fields concatenated in order, a vector
 // field's components interleaved per node. Each field becomes an index set named after
@@ -1391,6 +1392,25 @@ long contactTangent(const M *const &th, KN<long> *const &layout, KN<double> *con
   return 0;
 }
 
+// values = the physical checks' integrals over Gamma_3 at x (contact_forms.hpp's kCheckForms).
+template <class M>
+long contactIntegrals(const M *const &th, KN<long> *const &layout, KN<double> *const &law, KN<double> *const &x,
+                      KN<double> *const &values) {
+  ContactSetup s;
+  if (!th || values->N() != contact_forms::kChecks || !contactSetup(layout, law, x->N(), &s)) {
+    if (th && values->N() != contact_forms::kChecks)
+      lastMessage = "the contact integrals need a vector of " + std::to_string(contact_forms::kChecks);
+    return fail(PETSC_ERR_ARG_WRONG, "contact integrals");
+  }
+  const contact_forms::Form *checks = contact_forms::kCheckForms[s.dim - 2][s.friction];
+  *values = 0.;
+  bool ok = contactPoints(*th, s, *x, [&](const int *, const double *, double w, contact_forms::Point &pt) {
+    for (int q = 0; q < contact_forms::kChecks; ++q) (*values)[q] += w * checks[q](s.law, pt);
+  });
+  if (!ok) return fail(PETSC_ERR_ARG_WRONG, "contact integrals");
+  return 0;
+}
+
 long krylov(Context *c, KN<double> *b, KN<double> *x, double rtol, long reuse);
 
 // x = A^-1 b to ||b - A x|| <= rtol ||b||, from x = 0.
@@ -2032,6 +2052,11 @@ static void init() {
   Global.Add("petscContactTangent", "(",
              new OneOperator5_<long, pmesh, KN<long> *, KN<double> *, KN<double> *, Matrice_Creuse<double> *>(
                  contactTangent<Mesh>));
+  Global.Add("petscContactIntegrals", "(",
+             new OneOperator5_<long, pmesh, KN<long> *, KN<double> *, KN<double> *, KN<double> *>(contactIntegrals<Mesh>));
+  Global.Add("petscContactIntegrals", "(",
+             new OneOperator5_<long, pmesh3, KN<long> *, KN<double> *, KN<double> *, KN<double> *>(
+                 contactIntegrals<Mesh3>));
   Global.Add("petscContactTangent", "(",
              new OneOperator5_<long, pmesh3, KN<long> *, KN<double> *, KN<double> *, Matrice_Creuse<double> *>(
                  contactTangent<Mesh3>));

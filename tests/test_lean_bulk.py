@@ -188,13 +188,15 @@ CONTACT_CASES = [("longcontact", 8, (), {"open", "stick", "slip"}), ("coulomb", 
 @pytest.mark.parametrize("case,n,overrides,states", CONTACT_CASES)
 def test_the_contact_kernel_is_the_varfs_entry_by_entry(tmp_path, case, n, overrides, states):
     """The plugin's contact residual and tangent (freefem/contact_kernel.idp) against the varfs
-    of the same integrands (forms.idp), at every Newton step of a solve from zero: the same
-    values to round-off, entry by entry, with stick and slip, open and closed points."""
+    of the same integrands (forms.idp), at every Newton step of a solve from zero, and its
+    integrals of the physical checks against FreeFEM's: the same values to round-off, entry by
+    entry, with stick and slip, open and closed points."""
     check = tmp_path / "check.csv"
     record, _, _ = petsc_run(tmp_path, "check", case, n, ["-debug.contact_check", str(check)], overrides)
     rows = [line.split(",") for line in check.read_text().splitlines()]
     kinds = {row[0] for row in rows}
-    assert kinds == {"residual", "tangent"}, kinds
+    # and, after the solve, the physical checks' integrals over Gamma_3 (checks.idp), one row each
+    assert kinds == {"residual", "tangent"} | {f"integral {j}" for j in range(len(contact_forms.CHECKS))}, kinds
     assert max(float(row[3]) for row in rows if row[0] == "residual") > 0
     for kind, _, difference, scale, kernel_entries, varf_entries in rows:
         # The varfs and the kernel sum the same products in another order (FreeFEM evaluates each

@@ -30,6 +30,10 @@ LAW = ("cnu", "U", "gap", "Su", "Sphi", "Stheta", "Phi", "Theta", "phif", "theta
 POINT = ("u1", "u2", "u3", "ph", "th", "a1", "a2", "a3", "ap", "at", "v1", "v2", "v3", "vp", "vt")
 FUNCTIONS = ("max", "min", "abs", "sqrt")
 FORMS = ("Ru", "Tuu", "Rp", "Tpu", "Tpp", "Rt", "Ttu", "Ttt")
+# The physical checks' integrands (check<name>), in the order of the kernel's integral vector
+# (checks.idp's contactIntegral indices); a third component exists in 3D only.
+CHECKS = ("Force", "Closed", "Friction1", "Friction2", "Friction3", "FrictionTotal", "FrictionOpen", "Heat",
+          "HeatReading", "Charge", "ChargeReading")
 SOURCES = ("friction.idp", "dimension.idp", "contact.idp", "contact_forms.idp")
 
 
@@ -38,6 +42,8 @@ def expansions(dimension: int, friction: bool) -> dict[str, str]:
     lines = [f"macro DIMENSION {dimension} //"] + (["macro effFriction 1 //"] if friction else [])
     lines += [f'include "{FREEFEM / name}"' for name in SOURCES]
     lines += [f'cout << "@@{form}" << endl << Stringification(form{form}) << endl;' for form in FORMS]
+    lines += [f'cout << "@@{check}" << endl << Stringification(check{check}) << endl;'
+              for check in CHECKS if check != "Friction3" or dimension == 3]
     lines.append('cout << "@@" << endl;')
     with tempfile.TemporaryDirectory(prefix="contact-forms-") as tmp:
         script = Path(tmp) / "expand.edp"
@@ -49,7 +55,7 @@ def expansions(dimension: int, friction: bool) -> dict[str, str]:
                            f"{done.stdout.strip().splitlines()[-1:] or done.stderr.strip()}")
     parts = re.split(r"^@@(\w*)\n", done.stdout, flags=re.M)
     found = {parts[i]: " ".join(parts[i + 1].split()) for i in range(1, len(parts) - 1, 2) if parts[i]}
-    missing = [f for f in FORMS if f not in found]
+    missing = [f for f in FORMS + CHECKS if f not in found and (f != "Friction3" or dimension == 3)]
     if missing:
         raise HarnessError(f"FreeFEM printed no expansion of form{', form'.join(missing)}")
     return found
@@ -77,25 +83,30 @@ def header() -> str:
            "inline double abs(double a) { return std::fabs(a); }",
            "inline double sqrt(double a) { return std::sqrt(a); }",
            "typedef double (*Form)(const Law &, const Point &);",
-           "struct Forms { Form " + ", ".join(FORMS) + "; };"]
+           "struct Forms { Form " + ", ".join(FORMS) + "; };",
+           f"const int kChecks = {len(CHECKS)};",
+           "inline double zero(const Law &, const Point &) { return 0; }"]
     bind = " ".join(f"const double {n} = L.{n};" for n in LAW) + " " + \
         " ".join(f"const double {n} = P.{n};" for n in POINT) + " const Normal &N = P.N;"
     out.append(f"#define CONTACT_FORMS_BIND {bind}")
-    tables, written = [], {}   # an expansion met before (a form the friction switch leaves alone) is reused
+    tables, checks, written = [], [], {}   # an expansion met before (a form the friction switch leaves alone) is reused
     for dimension in (2, 3):
         for friction in (False, True):
             suffix = f"d{dimension}{'_friction' if friction else ''}"
-            names = []
+            names = {}
             for form, text in expansions(dimension, friction).items():
                 check_names(form, text)
                 if text not in written:
                     written[text] = f"{form}_{suffix}"
                     out.append(f"inline double {written[text]}(const Law &L, const Point &P) {{ CONTACT_FORMS_BIND")
                     out.append(f"  return {text}; }}")
-                names.append(written[text])
-            tables.append("{" + ", ".join(names) + "}")
+                names[form] = written[text]
+            tables.append("{" + ", ".join(names[form] for form in FORMS) + "}")
+            checks.append("{" + ", ".join(names.get(check, "zero") for check in CHECKS) + "}")
     out.append("// By [dimension - 2][friction].")
     out.append(f"const Forms kForms[2][2] = {{{{{tables[0]}, {tables[1]}}}, {{{tables[2]}, {tables[3]}}}}};")
+    out.append("// The checks' integrands in CHECKS' order, likewise (zero: a component 2D lacks).")
+    out.append(f"const Form kCheckForms[2][2][kChecks] = {{{{{checks[0]}, {checks[1]}}}, {{{checks[2]}, {checks[3]}}}}};")
     out += ["#undef CONTACT_FORMS_BIND", "}  // namespace contact_forms", "#endif"]
     return "\n".join(out) + "\n"
 
