@@ -1392,6 +1392,37 @@ long contactTangent(const M *const &th, KN<long> *const &layout, KN<double> *con
   return 0;
 }
 
+// 1 when the compiled integrands are the script's own expansions of contact_forms.idp (texts: each
+// form's and check's Stringification, in kFormTexts' order, separated by "@@"), 0 otherwise, with
+// a note naming the first that differs: a law changed since contact_forms.hpp was written, or a
+// copy of the scripts with another law, then goes to FreeFEM's varfs instead.
+long contactCurrent(KN<long> *const &layout, string *const &texts) {
+  if (layout->N() != 8 || (*layout)[1] < 2 || (*layout)[1] > 3) {
+    lastMessage = "the contact kernel's layout has no dimension";
+    return fail(PETSC_ERR_ARG_WRONG, "contact kernel");
+  }
+  auto folded = [](const std::string &text) {
+    std::istringstream words(text);
+    std::string word, out;
+    while (words >> word) out += (out.empty() ? "" : " ") + word;
+    return out;
+  };
+  const char *const *compiled = contact_forms::kFormTexts[(*layout)[1] - 2][(*layout)[5] != 0];
+  std::string all = *texts;
+  for (int i = 0; i < contact_forms::kTexts; ++i) {
+    size_t end = all.find("@@");
+    std::string mine = folded(all.substr(0, end));
+    all = end == std::string::npos ? std::string() : all.substr(end + 2);
+    if (*compiled[i] && mine != compiled[i]) {
+      std::cout << "note: the contact kernel's integrand " << i << " is not this script's contact_forms.idp "
+                << "(`python -m harness.run.contact_forms` writes it again): FreeFEM's varfs assemble the contact terms"
+                << std::endl;
+      return 0;
+    }
+  }
+  return 1;
+}
+
 // values = the physical checks' integrals over Gamma_3 at x (contact_forms.hpp's kCheckForms).
 template <class M>
 long contactIntegrals(const M *const &th, KN<long> *const &layout, KN<double> *const &law, KN<double> *const &x,
@@ -2052,6 +2083,7 @@ static void init() {
   Global.Add("petscContactTangent", "(",
              new OneOperator5_<long, pmesh, KN<long> *, KN<double> *, KN<double> *, Matrice_Creuse<double> *>(
                  contactTangent<Mesh>));
+  Global.Add("petscContactCurrent", "(", new OneOperator2_<long, KN<long> *, string *>(contactCurrent));
   Global.Add("petscContactIntegrals", "(",
              new OneOperator5_<long, pmesh, KN<long> *, KN<double> *, KN<double> *, KN<double> *>(contactIntegrals<Mesh>));
   Global.Add("petscContactIntegrals", "(",

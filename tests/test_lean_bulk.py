@@ -10,6 +10,7 @@ solved apart (its blocks stay FreeFEM's)."""
 from __future__ import annotations
 
 import json
+import shutil
 from pathlib import Path
 
 import numpy as np
@@ -25,7 +26,8 @@ from harness.run.run import make_meshes
 from harness.scene.scene import load_scene
 from harness.scene.unknowns import Unknowns
 
-CASES = Path(__file__).parents[1] / "cases"
+REPO = Path(__file__).parents[1]
+CASES = REPO / "cases"
 
 
 def bulk_matrix(tmp: Path, case: str, n: int, solver: str, by_blocks: bool = False) -> tuple[tuple[int, int], np.ndarray]:
@@ -121,12 +123,12 @@ def test_the_element_kernels_k_is_the_block_assembled_k_entry_by_entry(tmp_path,
     assert np.abs(b[:, 2]).max() > 0
 
 
-def petsc_run(tmp: Path, name: str, case: str, n: int, options: list[str], overrides: tuple[str, ...] = ()
-                ) -> tuple[dict, list, Path]:
-    """One run on the PETSc path from zero with the scripts' extra options: run.json, the fields
-    and the work folder."""
+def petsc_run(tmp: Path, name: str, case: str, n: int, options: list[str], overrides: tuple[str, ...] = (),
+              scripts: Path | None = None) -> tuple[dict, list, Path]:
+    """One run on the PETSc path from zero with the scripts' extra options (and another copy of
+    freefem/, `scripts`): run.json, the fields and the work folder."""
     scene = load_scene(CASES / f"{case}.toml", ['run.linear_solver="petsc"', 'scene.initial_guess="zero"', *overrides])
-    layout = Layout(results=tmp / "results")
+    layout = Layout(results=tmp / "results", **({"freefem": scripts} if scripts else {}))
     mesh = build_mesh(scene.geometry, n, layout.meshes_dir(scene.name)).path
     work = tmp / name
     work.mkdir()
@@ -224,6 +226,25 @@ def test_a_solve_with_the_contact_kernel_is_the_solve_with_the_varfs(tmp_path, c
     # Round-off in the residual and the tangent, amplified by the problem's conditioning
     # (measured: 9e-15 relative on paper3d's chain to n = 16).
     assert_same_solve(run0, fields0, run1, fields1, 1e-10)
+
+
+def test_a_law_changed_since_the_header_was_written_goes_to_the_varfs(tmp_path):
+    """The kernel serves a script only where its compiled integrands are that script's own
+    expansion of contact_forms.idp: a copy of the scripts with the penalty halved in the
+    residual runs on the varfs, says so, and solves the changed problem."""
+    scripts = tmp_path / "freefem"
+    shutil.copytree(REPO / "freefem", scripts)
+    forms = scripts / "contact_forms.idp"
+    old = "(normalPressure(gapS(u)) * vnu(v)"
+    assert old in forms.read_text()
+    forms.write_text(forms.read_text().replace(old, "(0.5 * normalPressure(gapS(u)) * vnu(v)", 1))
+    changed, _, work = petsc_run(tmp_path, "changed", "paper3d", 2, [], scripts=scripts)
+    plain, _, plain_work = petsc_run(tmp_path, "plain", "paper3d", 2, [])
+    assert "note: the contact kernel" in (work / "stdout.txt").read_text()
+    assert "note: the contact kernel" not in (plain_work / "stdout.txt").read_text()
+    # Half the penalty, about twice the penetration under the same load.
+    assert changed["contact_force"] == pytest.approx(plain["contact_force"], rel=1e-3)
+    assert changed["max_abs_u"] > plain["max_abs_u"]
 
 
 def test_the_committed_contact_forms_header_is_current():
