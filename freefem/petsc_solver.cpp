@@ -1262,7 +1262,6 @@ bool contactPoints(const M &th, const ContactSetup &s, const KN<double> &x, Visi
     const GQuadratureFormular<R2> &qf = QuadratureFormular_T_5;
     for (int q = 0; q < qf.n; ++q) { bary.push_back({1 - qf[q].x - qf[q].y, qf[q].x, qf[q].y}); weights.push_back(qf[q].a); }
   }
-  const long nv = th.nv;
   for (long ibe = 0; ibe < boundaryCount(th); ++ibe) {
     if (th.be(ibe).lab != s.label) continue;
     int ie;
@@ -1306,7 +1305,6 @@ bool contactPoints(const M &th, const ContactSetup &s, const KN<double> &x, Visi
       visit(vert, lambda.data(), weights[q] * measure, point);
     }
   }
-  (void)nv;
   return true;
 }
 
