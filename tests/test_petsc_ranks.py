@@ -151,6 +151,21 @@ def test_petsc_on_ranks_gives_the_one_rank_solution_in_3d(tmp_path, guess, ranks
     assert_one_rank_solution(tmp_path, "paper3d", 4, ranks, guess)
 
 
+def test_a_restart_from_the_pressed_state_on_ranks_reads_the_whole_mesh_again(tmp_path):
+    # The ranks let the whole mesh go once the start and the numbering are made (ranks.idp); Newton's restart
+    # from the pressed state solves its harmonic extensions on the whole mesh, read again. no_piezo at n = 2
+    # from zero restarts after step 3 (docs/scale-out.md), on one rank (MUMPS) and on 2 with PETSc.
+    layout = Layout(results=tmp_path)
+    runs = []
+    for ranks, solver in ((1, "mumps"), (2, "petsc")):
+        scene = load_scene(CASES / "hard" / "no_piezo.toml", [f'run.linear_solver="{solver}"', f"run.ranks={ranks}",
+                                                             'scene.initial_guess="zero"', f'scene.name="restart-{ranks}"'])
+        runs.append(run_level(scene, build_mesh(scene.geometry, 2, layout.meshes_dir(scene.name)).path, 2, layout))
+    one, two = runs
+    assert one.record.restarted_at == two.record.restarted_at > 0 and two.record.converged
+    assert_one_rank_outputs(one.directory, two.directory)
+
+
 def test_the_default_on_ranks_is_the_distributed_multigrid_without_the_script_coarse_space():
     scene = load_scene(CASES / "paper.toml", ['run.linear_solver="petsc"', "run.ranks=2"])
     assert scene.solver_options == petsc_options.MULTIGRID_ON_RANKS and scene.multigrid_levels > 0
