@@ -129,16 +129,18 @@ class Unknowns:
                              for r, c in sorted(blocks) if c == "t" and r in newton)
         bulk_matrix = matrix("K{r}{c}", blocks)
         # Contact: the diagonal block of each Newton field (a zero block of its shape when its
-        # contact term is off) and the block of its dependence on u.
+        # contact term is off) and the block of its dependence on u, each on the quadrature that
+        # freefem/forms.idp's contactForm selects (the nodes' during newton.idp's lumped start).
         tangent, residual = [], []
         on = {f.low: f.contact in self.effects for f in FIELDS}
         blocks = set()
         for f in self.newton:
             k = f.low
-            tangent.append(f"matrix T{k}{k} = {'vT' if on[k] else 'vZ'}{k}{k}({f.space}, {f.space});")
+            tangent.append(f"matrix T{k}{k}; contactForm(T{k}{k}, vT{k}{k}, {f.space}, {f.space})" if on[k]
+                           else f"matrix T{k}{k} = vZ{k}{k}({f.space}, {f.space});")
             blocks.add((k, k))
             if k != "u" and on[k]:
-                tangent.append(f"matrix T{k}u = vT{k}u(Uh, {f.space});")
+                tangent.append(f"matrix T{k}u; contactForm(T{k}u, vT{k}u, Uh, {f.space})")
                 blocks.add((k, "u"))
         # Room in the plugin's K for the blocks of T that K lacks (a field's dependence on u
         # through the contact conductance): the first K + T then needs no wider copy of K.
@@ -146,7 +148,7 @@ class Unknowns:
                            f"if (petscBulkReserve(id, R{r}{c}, bulkOffset{r}, bulkOffset{c}) < 0) exit(exitInternal); }}"
                            for r, c in sorted(blocks) if r != c)
         for f in self.fields:
-            body = f"r = vR{f.low}(0, {f.space});" if on[f.low] else "r = 0;"
+            body = f"contactForm(r, vR{f.low}, 0, {f.space})" if on[f.low] else "r = 0;"
             residual.append(f"macro contactR{f.low}(r) {body} //")
         vector = ", ".join(f.key for f in self.newton)
         quote = '\\"'
