@@ -1628,7 +1628,7 @@ long destroy(long const &id) {
 // On N ranks each rank holds its overlapping subdomain (freefem/ranks.idp): its Newton vector's
 // dofs, the partition of unity D on them, and for each its index in the natural numbering of
 // the whole mesh's Newton vector (fields concatenated, a vector field's components per node),
-// which the script derives from the global mesh every rank keeps. From these:
+// which the script reads off the whole mesh once (freefem/ranks.idp). From these:
 //
 //   int part = petscRanksPart(natural, D, dirichlet);      // who owns which dof, PETSc's numbering
 //   int id = petscRanksCreate(part, options, names, sizes, blocks, coords);

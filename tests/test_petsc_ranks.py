@@ -1,20 +1,25 @@
 """PETSc across MPI ranks (run.ranks > 1 with run.linear_solver = "petsc": freefem/petsc_ranks.idp and the
 plugin's "Distributed solves", freefem/petsc_solver.cpp): the distributed matrix summed from the ranks'
 subdomains and PETSc's Krylov method and preconditioner across them give the one-rank PETSc solution to
-round-off, on 2 and 4 ranks, in 2D and 3D, for the monolithic effect sets and both branches; a bad option
-string and a PETSc error inside the Krylov solve are one line, their exit code and no process left."""
+round-off, on 2 and 4 ranks, in 2D and 3D, for the monolithic effect sets and both branches, and the ranks
+write what a one-rank run writes (run.json's checks, estimates and extremes, solution.vtu, state.txt) to
+round-off with no sequential pass after them; a bad option string and a PETSc error inside the Krylov solve
+are one line, their exit code and no process left."""
 
 from __future__ import annotations
 
+import json
 from pathlib import Path
 
+import meshio
 import numpy as np
 import pytest
 
 from harness.cli import main
 from harness.core.contract import ExitCode
 from harness.core.layout import Layout
-from harness.measure.fields import read_state
+from harness.measure.fields import read_fields, read_state
+from harness.measure.run_checks import judge
 from harness.mesh.mesh import build_mesh
 from harness.run.run import run_level
 from harness.scene import petsc_options
@@ -54,6 +59,74 @@ def assert_one_rank_solution(root: Path, case: str, n: int, ranks: tuple[int, ..
                               read_state(many.directory / "state.txt")):
             scale = max(np.abs(a).max(), 1e-300)
             assert np.abs(a - b).max() <= AGREE * scale, (case, count, name, np.abs(a - b).max() / scale)
+        # The ranks wrote the outputs themselves: no sequential pass ran after them.
+        assert many.record.post_pass_peak_rss_mb is None and not (many.directory / "ranks_record.txt").exists()
+        assert_one_rank_outputs(one.directory, many.directory)
+        scene = load_scene(CASES / f"{case}.toml")
+        verdicts = [judge(run.record, scene) for run in (one, many)]
+        assert verdicts[0].failed == verdicts[1].failed and verdicts[0].missing == verdicts[1].missing
+
+
+# run.json's quantities the harness reads after a run, each against the scale its physical check judges it
+# on (harness/measure/checks.py): a nodal traction or flux and a balance's sum are a residual's parts,
+# K x - b at a node, where terms of the reading's size cancel; their round-off is the reading's, not
+# their own (max_sigma_nu is -1.4e-7 N/m^2 against a traction reading of 6.8e3 on paper3d at n = 4).
+CHECK_SCALES = {
+    "applied_load": "force_reading", "clamp_reaction": "force_reading", "contact_force_on_body": "force_reading",
+    "max_sigma_nu": "traction_reading", "min_sigma_nu": "traction_reading", "max_abs_sigma_tau": "traction_reading",
+    "S": "traction_reading", "heat_source": "heat_reading", "heat_out_dirichlet": "heat_reading",
+    "max_heat_flux_contact": "heat_flux_reading", "max_heat_flux_open": "heat_flux_reading",
+    "max_heat_flux_open_expected": "heat_flux_reading", "charge_source": "charge_reading",
+    "charge_out_dirichlet": "charge_reading", "electrode_charge": "charge_reading",
+    "max_charge_flux_contact": "charge_flux_reading", "max_charge_flux_open": "charge_flux_reading",
+    "max_charge_flux_open_expected": "charge_flux_reading",
+}
+# Relative already, and round-off or Newton's last residual (force_residual_bound, sqrt(N_u) ||R_u||), which
+# differ with the Newton path, not with where the outputs are made (the residual history differs as much):
+# the checks judge them the same way on both sides (judge, below).
+NEWTON_CHECKS = ("force_imbalance", "force_residual_bound", "heat_imbalance", "charge_imbalance")
+# The contact integrals, in a reading's units (checks.idp).
+TOP_SCALES = {"contact_force": "force_reading", "friction_force": "force_reading", "friction_total": "force_reading",
+              "friction_open": "force_reading", "heat_in_contact": "heat_contact_reading",
+              "charge_in_contact": "charge_contact_reading"}
+
+
+def close(a, b, scale: float = 0.0) -> bool:
+    a, b = np.atleast_1d(np.asarray(a, dtype=float)), np.atleast_1d(np.asarray(b, dtype=float))
+    bound = AGREE * max(np.abs(a).max(initial=0), np.abs(b).max(initial=0), scale)
+    return bool(np.abs(a - b).max(initial=0) <= bound)
+
+
+def assert_one_rank_outputs(one: Path, many: Path) -> None:
+    """The ranks' run.json, solution.vtu and state.txt are the one-rank run's to round-off."""
+    a, b = (json.loads((d / "run.json").read_text()) for d in (one, many))
+    for key in ("nodes", "dofs", "newton_dofs", "fields"):
+        assert a[key] == b[key], key
+    ca, cb = a["checks"], b["checks"]
+    assert ca["open_nodes"] == cb["open_nodes"]
+    for key, value in ca.items():
+        if key not in NEWTON_CHECKS and key != "open_nodes":
+            assert close(value, cb[key], ca.get(CHECK_SCALES.get(key, ""), 0.0)), (key, value, cb[key])
+    for key, scale in TOP_SCALES.items():
+        assert close(a[key], b[key], ca.get(scale, 0.0)), (key, a[key], b[key])
+    ranges = [key for key in a if key.startswith(("min_", "max_"))]
+    assert "max_abs_u" in ranges
+    for key in ranges:
+        field = key.split("_", 1)[1]
+        scale = max(abs(a.get(f"min_{field}", 0.0)), abs(a.get(f"max_{field}", 0.0)))
+        assert close(a[key], b[key], scale), (key, a[key], b[key])
+    assert close(a["friction_force_vector"], b["friction_force_vector"], ca["force_reading"])
+    for key in ("estimator", "estimator_norms"):
+        assert a[key] and a[key].keys() == b[key].keys()
+        for field, value in a[key].items():
+            assert close(value, b[key][field]), (key, field, value, b[key][field])
+    fa, fb = read_fields(one / "solution.vtu"), read_fields(many / "solution.vtu")
+    assert np.array_equal(fa.points, fb.points) and np.array_equal(fa.cells, fb.cells)
+    assert fa.values.keys() == fb.values.keys() and "error_indicator" not in fa.values  # a cell field
+    for name, value in fa.values.items():
+        assert close(value, fb.values[name]), name
+    ia, ib = (meshio.read(d / "solution.vtu").cell_data["error_indicator"] for d in (one, many))
+    assert close(np.concatenate(ia), np.concatenate(ib)), "error_indicator"
 
 
 # The 2D scenes whose Newton system is monolithic (a staggered theta is refused on ranks,
@@ -76,6 +149,21 @@ def test_petsc_on_ranks_with_multigrid_levels_gives_the_one_rank_solution(tmp_pa
                                           pytest.param("pressed", (2,), marks=pytest.mark.heavy)])
 def test_petsc_on_ranks_gives_the_one_rank_solution_in_3d(tmp_path, guess, ranks):
     assert_one_rank_solution(tmp_path, "paper3d", 4, ranks, guess)
+
+
+def test_a_restart_from_the_pressed_state_on_ranks_reads_the_whole_mesh_again(tmp_path):
+    # The ranks let the whole mesh go once the start and the numbering are made (ranks.idp); Newton's restart
+    # from the pressed state solves its harmonic extensions on the whole mesh, read again. no_piezo at n = 2
+    # from zero restarts after step 3 (docs/scale-out.md), on one rank (MUMPS) and on 2 with PETSc.
+    layout = Layout(results=tmp_path)
+    runs = []
+    for ranks, solver in ((1, "mumps"), (2, "petsc")):
+        scene = load_scene(CASES / "hard" / "no_piezo.toml", [f'run.linear_solver="{solver}"', f"run.ranks={ranks}",
+                                                             'scene.initial_guess="zero"', f'scene.name="restart-{ranks}"'])
+        runs.append(run_level(scene, build_mesh(scene.geometry, 2, layout.meshes_dir(scene.name)).path, 2, layout))
+    one, two = runs
+    assert one.record.restarted_at == two.record.restarted_at > 0 and two.record.converged
+    assert_one_rank_outputs(one.directory, two.directory)
 
 
 def test_the_default_on_ranks_is_the_distributed_multigrid_without_the_script_coarse_space():

@@ -30,6 +30,8 @@ def test_every_key_output_idp_writes_is_declared():
     top, checks = written(FREEFEM / "output.idp")
     history, _ = written(FREEFEM / "json.idp")  # the Newton run and the ranks' figures, output.idp's macros
     top |= history
+    passed, _ = written(FREEFEM / "ranks_record.idp")  # the sequential pass's own keys, output.idp's macro
+    top |= passed
     reference, _ = written(FREEFEM / "reference_error.idp")
     estimator, _ = written(FREEFEM / "estimator.idp")
     reference |= estimator  # both write their keys through a macro output.idp calls

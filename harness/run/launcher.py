@@ -1,5 +1,6 @@
 """One level on several MPI ranks (run.ranks > 1): the launcher command, its environment,
-and the sequential pass that reads the checks and outputs of the gathered state.
+and the sequential pass that reads the checks and outputs of the gathered state where the
+ranks do not write them themselves.
 
 The distributed Newton solve is freefem/scheme.idp with its N-rank backend (freefem/ranks.idp)
 under FreeFem++-mpi, started by
@@ -12,6 +13,9 @@ writes solution.vtu, state.txt and run.json with every check, exactly as a one-r
 does, and with the ranks' Newton run and figures read from their record
 (freefem/ranks_record.idp): FreeFEM writes run.json whole; nothing here reads or mends it.
 A run that fails on the ranks has its run.json written there (the reason, the history).
+With PETSc across the ranks (`outputs_on_ranks`) no pass follows: the ranks compute the checks,
+the estimator and the norms with reductions over the partition of unity and rank 0 writes
+solution.vtu, state.txt and run.json, the same values to round-off (freefem/parallel_output.idp).
 `run.ranks = 1` never comes here.
 """
 
@@ -122,6 +126,13 @@ def check_parallel(scene: Any) -> None:
     if Unknowns(scene.effects, scene.dimension).staggered:
         raise SceneError("run.ranks > 1 solves the monolithic Newton system only: this scene's theta is staggered "
                          "(thermal without thermal_contact); solve it on one rank")
+
+
+def outputs_on_ranks(scene: Any) -> bool:
+    """Whether the ranks write the run's outputs themselves (freefem/parallel_output.idp, OUTPUTHERE
+    in freefem/ranks.idp): with PETSc across them, unless a reference run is to be measured, which
+    the sequential pass reads on the whole mesh. Otherwise that pass follows the distributed solve."""
+    return ranks_of(scene).parallel and scene.solver.builds_plugin and not scene.reference_macros()
 
 
 def environment() -> dict[str, str]:

@@ -99,7 +99,7 @@ class RunPlan:
     guess: str              # FreeFEM's initial_guess
     start: WarmStart | None
     main: Invocation
-    post: Invocation | None  # the sequential pass after a distributed solve (harness/run/launcher.py)
+    post: Invocation | None  # the sequential pass after a distributed solve, if any (harness/run/launcher.py)
     inputs: Mapping[str, Any]  # what the key covers, and the key
 
     @property
@@ -113,7 +113,7 @@ def make_plan(scene: Scene, mesh: Path, n: int, layout: Layout, warm: WarmStart 
     main = invocation(scene, mesh, n, layout, guess, start)
     ranks = launcher.ranks_of(scene)
     post = None
-    if ranks.parallel:
+    if ranks.parallel and not launcher.outputs_on_ranks(scene):
         post = invocation(scene, mesh, n, layout, "file", WarmStart(mesh, Path(PARALLEL_STATE)), sequential=True)
     described = {**scene.run_inputs(), "start": guess}
     if ranks.parallel:  # a run on other ranks is another measurement (same solution to round-off)
