@@ -45,8 +45,9 @@ BYTES_PER_DOF_ITERATIVE = {2: 7e3, 3: 14.5e3}
 # 3D h = 1/2, 1/4, 1/8, 1/16, 1/32: 66, 75, 187, 393, 1,947 MiB for 405, 2,125, 13,365,
 # 93,925, 702,405 dofs; 2D h = 1/8 ... 1/128: 65, 70, 89, 168, 476 MiB for 1,188, 4,420,
 # 17,028, 66,820, 264,708 dofs. At 3D 1/32 the matrices' share is 2.7 kB per dof; below
-# n = 8 the level's own LU is the coarse solve.
-MULTIGRID_START_MIB = {2: 60.0, 3: 60.0}
+# n = 8 the level's own LU is the coarse solve. The 3D start-up rose by ~3 MiB when the plugin
+# took in the contact kernel (3D h = 1/2: 68.4 MiB).
+MULTIGRID_START_MIB = {2: 60.0, 3: 63.0}
 MULTIGRID_MIB_PER_DOF = {2: 1.58e-3, 3: 2.55e-3}
 # The LU of the paper's coarsest level (dofs, MiB): 3D n = 8, 2D n = 8; another size scales it.
 MULTIGRID_COARSE_LU = {2: (1_188, 3.5), 3: (13_365, 93.0)}
