@@ -28,6 +28,12 @@
 //   petscBulkReserve(k, Ttu, rowOffset, colOffset); ... // room for the contact tangent's entries K lacks
 //   petscBulkKernel(k, Th);                              // then petscBulkAssemble(k) as above
 //
+// and Gamma_3's contact residual and tangent at the Newton vector x, by a kernel whose
+// integrands are the contact forms' own macros, compiled (contact_forms.hpp, generated):
+//
+//   petscContactResidual(Th, layout, law, x, r);  petscContactTangent(Th, layout, law, x, T);
+//   petscContactIntegrals(Th, layout, law, x, values);   // the physical checks' integrals
+//
 // The unknowns are FreeFEM's Newton vector: the fields concatenated in order, a vector
 // field's components interleaved per node. Each field becomes an index set named after
 // it, so that "-pc_type fieldsplit -fieldsplit_u_pc_type gamg" addresses the displacement;
@@ -55,6 +61,7 @@
 #include "ff++.hpp"
 #include "AFunction_ext.hpp"
 #include "lgfem.hpp"
+#include "contact_forms.hpp"
 
 namespace {
 
@@ -1195,6 +1202,244 @@ long bulkKernel(long const &id, const M *const &th) {
   return 0;
 }
 
+// ---- The contact kernel: Gamma_3's residual and tangent in one pass over its faces ----
+// The integrands are freefem/contact_forms.idp's macros, as FreeFEM expands them, compiled here
+// through contact_forms.hpp (harness/run/contact_forms.py): this code does only the loop over
+// Gamma_3's faces and quadrature points that FreeFEM's boundary varfs interpret (about 90 us a
+// point). Each form is linear in the test function (residual) and bilinear in the increment and
+// the test function (tangent), so a point's vector or block is the form evaluated with unit ones,
+// as the bulk kernel's D is read off a form with unit probes. The rule is FreeFEM's own contactQF
+// (dimension.idp): 2-point Gauss-Legendre on an edge, the 7-point degree-5 rule on a triangle.
+// tests/test_lean_bulk.py: both equal the varfs' entry by entry.
+struct ContactSetup {
+  long label = 0;
+  int dim = 0;
+  long offset[3] = {-1, -1, -1};   // u, phi, theta in the Newton vector (-1: not in it)
+  bool friction = false, electric = false, thermal = false;
+  contact_forms::Law law;
+};
+
+bool contactSetup(KN<long> *layout, KN<double> *law, long n, ContactSetup *s) {
+  const long laws = sizeof(contact_forms::Law) / sizeof(double);
+  if (layout->N() != 8 || law->N() != laws) {
+    lastMessage = "the contact kernel needs [label, dimension, u, phi and theta offsets, friction, electric, thermal] "
+                  "and " + std::to_string(laws) + " law constants";
+    return false;
+  }
+  s->label = (*layout)[0];
+  s->dim = (int)(*layout)[1];
+  for (int f = 0; f < 3; ++f) s->offset[f] = (*layout)[2 + f];
+  s->friction = (*layout)[5] != 0;
+  s->electric = (*layout)[6] != 0 && s->offset[1] >= 0;
+  s->thermal = (*layout)[7] != 0 && s->offset[2] >= 0;
+  double *to = &s->law.cnu;
+  for (long i = 0; i < laws; ++i) to[i] = (*law)[i];
+  if (s->offset[0] < 0 || s->offset[0] >= n || s->offset[1] >= n || s->offset[2] >= n) {
+    lastMessage = "the contact kernel's field offsets lie outside the Newton vector";
+    return false;
+  }
+  return true;
+}
+
+long boundaryCount(const Mesh &th) { return th.neb; }
+long boundaryCount(const Mesh3 &th) { return th.nbe; }
+
+// Each quadrature point of each face labelled s.label: visit(vertices, lambda, weight, point)
+// with the face's vertices, their P1 basis values and the point's state and outward normal.
+template <class M, class Visit>
+bool contactPoints(const M &th, const ContactSetup &s, const KN<double> &x, Visit visit) {
+  const int dim = M::Rd::d;
+  if (dim != s.dim) {
+    lastMessage = "the contact kernel's mesh is not of the scene's dimension";
+    return false;
+  }
+  std::vector<std::vector<double>> bary;   // the rule's points, barycentric on the face
+  std::vector<double> weights;
+  if (dim == 2) {
+    const QuadratureFormular1d &qf = QF_GaussLegendre2;
+    for (int q = 0; q < qf.n; ++q) { bary.push_back({1 - qf[q].x, qf[q].x}); weights.push_back(qf[q].a); }
+  } else {
+    const GQuadratureFormular<R2> &qf = QuadratureFormular_T_5;
+    for (int q = 0; q < qf.n; ++q) { bary.push_back({1 - qf[q].x - qf[q].y, qf[q].x, qf[q].y}); weights.push_back(qf[q].a); }
+  }
+  for (long ibe = 0; ibe < boundaryCount(th); ++ibe) {
+    if (th.be(ibe).lab != s.label) continue;
+    int ie;
+    const int k = th.BoundaryElement(ibe, ie);
+    int vert[3];
+    double p[3][3] = {{0}}, opposite[3] = {0};
+    for (int i = 0, f = 0; i <= dim; ++i) {
+      const double *c = &th(th(k, i)).x;
+      if (i == ie) { for (int r = 0; r < dim; ++r) opposite[r] = c[r]; continue; }
+      vert[f] = th(k, i);
+      for (int r = 0; r < dim; ++r) p[f][r] = c[r];
+      ++f;
+    }
+    // The face's normal, its measure, and the normal turned away from the element's other vertex.
+    double normal[3] = {0, 0, 0}, measure;
+    if (dim == 2) {
+      normal[0] = p[1][1] - p[0][1]; normal[1] = p[0][0] - p[1][0];
+      measure = std::sqrt(normal[0] * normal[0] + normal[1] * normal[1]);
+    } else {
+      double e1[3], e2[3];
+      for (int r = 0; r < 3; ++r) { e1[r] = p[1][r] - p[0][r]; e2[r] = p[2][r] - p[0][r]; }
+      normal[0] = e1[1] * e2[2] - e1[2] * e2[1];
+      normal[1] = e1[2] * e2[0] - e1[0] * e2[2];
+      normal[2] = e1[0] * e2[1] - e1[1] * e2[0];
+      measure = 0.5 * std::sqrt(normal[0] * normal[0] + normal[1] * normal[1] + normal[2] * normal[2]);
+    }
+    double length = std::sqrt(normal[0] * normal[0] + normal[1] * normal[1] + normal[2] * normal[2]), side = 0;
+    for (int r = 0; r < dim; ++r) side += normal[r] * (p[0][r] - opposite[r]);
+    if (side < 0) length = -length;
+    contact_forms::Point point = {};
+    point.N = {normal[0] / length, normal[1] / length, normal[2] / length};
+    for (size_t q = 0; q < weights.size(); ++q) {
+      const std::vector<double> &lambda = bary[q];
+      double u[3] = {0, 0, 0}, ph = 0, tt = 0;
+      for (int j = 0; j < dim; ++j) {
+        for (int c = 0; c < dim; ++c) u[c] += lambda[j] * x[s.offset[0] + (long)vert[j] * dim + c];
+        if (s.offset[1] >= 0) ph += lambda[j] * x[s.offset[1] + vert[j]];
+        if (s.offset[2] >= 0) tt += lambda[j] * x[s.offset[2] + vert[j]];
+      }
+      point.u1 = u[0]; point.u2 = u[1]; point.u3 = u[2]; point.ph = ph; point.th = tt;
+      visit(vert, lambda.data(), weights[q] * measure, point);
+    }
+  }
+  return true;
+}
+
+// r = the contact residual at the Newton vector x (contactR of every field, in its place).
+template <class M>
+long contactResidual(const M *const &th, KN<long> *const &layout, KN<double> *const &law, KN<double> *const &x,
+                     KN<double> *const &r) {
+  ContactSetup s;
+  if (!th || r->N() != x->N() || !contactSetup(layout, law, x->N(), &s)) {
+    if (th && r->N() != x->N()) lastMessage = "the contact residual's vector is not the Newton vector's size";
+    return fail(PETSC_ERR_ARG_WRONG, "contact residual");
+  }
+  const contact_forms::Forms &forms = contact_forms::kForms[s.dim - 2][s.friction];
+  const int dim = s.dim;
+  *r = 0.;
+  bool ok = contactPoints(*th, s, *x, [&](const int *vert, const double *lambda, double w, contact_forms::Point &pt) {
+    double *v[3] = {&pt.v1, &pt.v2, &pt.v3};
+    for (int c = 0; c < dim; ++c) {
+      *v[c] = 1;
+      const double value = w * forms.Ru(s.law, pt);
+      *v[c] = 0;
+      for (int j = 0; j < dim; ++j) (*r)[s.offset[0] + (long)vert[j] * dim + c] += lambda[j] * value;
+    }
+    if (s.electric) {
+      pt.vp = 1;
+      const double value = w * forms.Rp(s.law, pt);
+      pt.vp = 0;
+      for (int j = 0; j < dim; ++j) (*r)[s.offset[1] + vert[j]] += lambda[j] * value;
+    }
+    if (s.thermal) {
+      pt.vt = 1;
+      const double value = w * forms.Rt(s.law, pt);
+      pt.vt = 0;
+      for (int j = 0; j < dim; ++j) (*r)[s.offset[2] + vert[j]] += lambda[j] * value;
+    }
+  });
+  if (!ok) return fail(PETSC_ERR_ARG_WRONG, "contact residual");
+  return 0;
+}
+
+// T = the contact tangent at the Newton vector x, a FreeFEM matrix of the Newton system's size.
+template <class M>
+long contactTangent(const M *const &th, KN<long> *const &layout, KN<double> *const &law, KN<double> *const &x,
+                    Matrice_Creuse<double> *const &T) {
+  ContactSetup s;
+  if (!th || !contactSetup(layout, law, x->N(), &s)) return fail(PETSC_ERR_ARG_WRONG, "contact tangent");
+  const contact_forms::Forms &forms = contact_forms::kForms[s.dim - 2][s.friction];
+  const int dim = s.dim;
+  const int n = (int)x->N();
+  HashMatrix<int, double> *t = new HashMatrix<int, double>(n, n, 0, 0);
+  auto add = [&](long row, long col, double value) { (*t)((int)row, (int)col) += value; };
+  bool ok = contactPoints(*th, s, *x, [&](const int *vert, const double *lambda, double w, contact_forms::Point &pt) {
+    double *a[3] = {&pt.a1, &pt.a2, &pt.a3}, *v[3] = {&pt.v1, &pt.v2, &pt.v3};
+    double block[3][3], fromU[2][3], diagonal[2] = {0, 0};
+    for (int cj = 0; cj < dim; ++cj) {
+      *a[cj] = 1;
+      for (int ci = 0; ci < dim; ++ci) { *v[ci] = 1; block[ci][cj] = w * forms.Tuu(s.law, pt); *v[ci] = 0; }
+      if (s.electric) { pt.vp = 1; fromU[0][cj] = w * forms.Tpu(s.law, pt); pt.vp = 0; }
+      if (s.thermal) { pt.vt = 1; fromU[1][cj] = w * forms.Ttu(s.law, pt); pt.vt = 0; }
+      *a[cj] = 0;
+    }
+    if (s.electric) { pt.ap = 1; pt.vp = 1; diagonal[0] = w * forms.Tpp(s.law, pt); pt.ap = 0; pt.vp = 0; }
+    if (s.thermal) { pt.at = 1; pt.vt = 1; diagonal[1] = w * forms.Ttt(s.law, pt); pt.at = 0; pt.vt = 0; }
+    for (int i = 0; i < dim; ++i)
+      for (int j = 0; j < dim; ++j) {
+        const double ll = lambda[i] * lambda[j];
+        const long rowU = s.offset[0] + (long)vert[i] * dim, colU = s.offset[0] + (long)vert[j] * dim;
+        for (int ci = 0; ci < dim; ++ci)
+          for (int cj = 0; cj < dim; ++cj) add(rowU + ci, colU + cj, ll * block[ci][cj]);
+        for (int f = 0; f < 2; ++f) {
+          if (!(f == 0 ? s.electric : s.thermal)) continue;
+          const long row = s.offset[1 + f] + vert[i];
+          for (int cj = 0; cj < dim; ++cj) add(row, colU + cj, ll * fromU[f][cj]);
+          add(row, s.offset[1 + f] + vert[j], ll * diagonal[f]);
+        }
+      }
+  });
+  if (!ok) {
+    delete t;
+    return fail(PETSC_ERR_ARG_WRONG, "contact tangent");
+  }
+  T->A.master(t);
+  return 0;
+}
+
+// 1 when the compiled integrands are the script's own expansions of contact_forms.idp (texts: each
+// form's and check's Stringification, in kFormTexts' order, separated by "@@"), 0 otherwise, with
+// a note naming the first that differs: a law changed since contact_forms.hpp was written, or a
+// copy of the scripts with another law, then goes to FreeFEM's varfs instead.
+long contactCurrent(KN<long> *const &layout, string *const &texts) {
+  if (layout->N() != 8 || (*layout)[1] < 2 || (*layout)[1] > 3) {
+    lastMessage = "the contact kernel's layout has no dimension";
+    return fail(PETSC_ERR_ARG_WRONG, "contact kernel");
+  }
+  auto folded = [](const std::string &text) {
+    std::istringstream words(text);
+    std::string word, out;
+    while (words >> word) out += (out.empty() ? "" : " ") + word;
+    return out;
+  };
+  const char *const *compiled = contact_forms::kFormTexts[(*layout)[1] - 2][(*layout)[5] != 0];
+  std::string all = *texts;
+  for (int i = 0; i < contact_forms::kTexts; ++i) {
+    size_t end = all.find("@@");
+    std::string mine = folded(all.substr(0, end));
+    all = end == std::string::npos ? std::string() : all.substr(end + 2);
+    if (*compiled[i] && mine != compiled[i]) {
+      std::cout << "note: the contact kernel's integrand " << i << " is not this script's contact_forms.idp "
+                << "(`python -m harness.run.contact_forms` writes it again): FreeFEM's varfs assemble the contact terms"
+                << std::endl;
+      return 0;
+    }
+  }
+  return 1;
+}
+
+// values = the physical checks' integrals over Gamma_3 at x (contact_forms.hpp's kCheckForms).
+template <class M>
+long contactIntegrals(const M *const &th, KN<long> *const &layout, KN<double> *const &law, KN<double> *const &x,
+                      KN<double> *const &values) {
+  ContactSetup s;
+  if (!th || values->N() != contact_forms::kChecks || !contactSetup(layout, law, x->N(), &s)) {
+    if (th && values->N() != contact_forms::kChecks)
+      lastMessage = "the contact integrals need a vector of " + std::to_string(contact_forms::kChecks);
+    return fail(PETSC_ERR_ARG_WRONG, "contact integrals");
+  }
+  const contact_forms::Form *checks = contact_forms::kCheckForms[s.dim - 2][s.friction];
+  *values = 0.;
+  bool ok = contactPoints(*th, s, *x, [&](const int *, const double *, double w, contact_forms::Point &pt) {
+    for (int q = 0; q < contact_forms::kChecks; ++q) (*values)[q] += w * checks[q](s.law, pt);
+  });
+  if (!ok) return fail(PETSC_ERR_ARG_WRONG, "contact integrals");
+  return 0;
+}
+
 long krylov(Context *c, KN<double> *b, KN<double> *x, double rtol, long reuse);
 
 // x = A^-1 b to ||b - A x|| <= rtol ||b||, from x = 0.
@@ -1829,6 +2074,22 @@ static void init() {
   Global.Add("petscBulkReserve", "(", new OneOperator4_<long, long, Matrice_Creuse<double> *, long, long>(bulkReserve));
   Global.Add("petscBulkKernel", "(", new OneOperator2_<long, long, pmesh>(bulkKernel<Mesh>));
   Global.Add("petscBulkKernel", "(", new OneOperator2_<long, long, pmesh3>(bulkKernel<Mesh3>));
+  Global.Add("petscContactResidual", "(",
+             new OneOperator5_<long, pmesh, KN<long> *, KN<double> *, KN<double> *, KN<double> *>(contactResidual<Mesh>));
+  Global.Add("petscContactResidual", "(",
+             new OneOperator5_<long, pmesh3, KN<long> *, KN<double> *, KN<double> *, KN<double> *>(contactResidual<Mesh3>));
+  Global.Add("petscContactTangent", "(",
+             new OneOperator5_<long, pmesh, KN<long> *, KN<double> *, KN<double> *, Matrice_Creuse<double> *>(
+                 contactTangent<Mesh>));
+  Global.Add("petscContactCurrent", "(", new OneOperator2_<long, KN<long> *, string *>(contactCurrent));
+  Global.Add("petscContactIntegrals", "(",
+             new OneOperator5_<long, pmesh, KN<long> *, KN<double> *, KN<double> *, KN<double> *>(contactIntegrals<Mesh>));
+  Global.Add("petscContactIntegrals", "(",
+             new OneOperator5_<long, pmesh3, KN<long> *, KN<double> *, KN<double> *, KN<double> *>(
+                 contactIntegrals<Mesh3>));
+  Global.Add("petscContactTangent", "(",
+             new OneOperator5_<long, pmesh3, KN<long> *, KN<double> *, KN<double> *, Matrice_Creuse<double> *>(
+                 contactTangent<Mesh3>));
   Global.Add("petscStats", "(", new OneOperator2_<long, long, KN<double> *>(stats));
   Global.Add("petscAddLevel", "(", new OneOperator2_<long, long, Matrice_Creuse<double> *>(addLevel));
   Global.Add("petscDestroy", "(", new OneOperator1_<long, long>(destroy));

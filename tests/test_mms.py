@@ -269,15 +269,16 @@ MUTATIONS = {
                                "macro DT3(th) (mat(p3) * Theta * (th))"),
     "shear piezoelectric sign (D1)": ("bulk", "constitutive.idp", "macro DU1(u) (mat(e15) * eps5(u)",
                                       "macro DU1(u) (-mat(e15) * eps5(u)"),
-    "penalty factor": ("contact", "forms.idp", "(normalPressure(gapS(u)) * vnu(v)",
+    "penalty factor": ("contact", "contact_forms.idp", "(normalPressure(gapS(u)) * vnu(v)",
                        "(0.5 * normalPressure(gapS(u)) * vnu(v)"),
     # The residual's own bound halved, spelled with friction.idp's projection (the law's
-    # macro set is shared with mms.idp, so the mutation is written out here, in forms.idp).
-    "Tresca bound": ("contact", "forms.idp", "frictionScaleOf(u) * cnu * U * tauDot(u, v)",
+    # macro set is shared with mms.idp, so the mutation is written out here, in the residual's
+    # integrand: contact_forms.idp).
+    "Tresca bound": ("contact", "contact_forms.idp", "frictionScaleOf(u) * cnu * U * tauDot(u, v)",
                      "projScale(wNorm(u), 0.5 * frictionBound(normalPressure(gapS(u)))) * cnu * U * tauDot(u, v)"),
-    "electric conductance sign": ("contact", "forms.idp", "(electricFlux(gapS(u), Phi * ph - phif) * vp",
+    "electric conductance sign": ("contact", "contact_forms.idp", "(electricFlux(gapS(u), Phi * ph - phif) * vp",
                                   "(-electricFlux(gapS(u), Phi * ph - phif) * vp"),
-    "thermal conductance factor": ("contact", "forms.idp", "(thermalFlux(gapS(u), Theta * th - thetaf) * vt",
+    "thermal conductance factor": ("contact", "contact_forms.idp", "(thermalFlux(gapS(u), Theta * th - thetaf) * vt",
                                    "(0.5 * thermalFlux(gapS(u), Theta * th - thetaf) * vt"),
 }
 
@@ -286,7 +287,7 @@ MUTATIONS = {
 def test_a_wrong_term_in_the_scheme_fails_the_manufactured_rates(tmp_path, mutation):
     """Mutation: the scheme's residual (not the manufactured data) gets one term wrong; some
     field's error must stop converging, i.e. leave the slope bands. The contact mutations
-    are in the residual of freefem/forms.idp; freefem/mms.idp evaluates the contact laws
+    are in the residual's integrands, freefem/contact_forms.idp; freefem/mms.idp evaluates the contact laws
     at the exact state with contact.idp's and friction.idp's macros, so a sign error inside those macros
     (shared by both sides) would not show here: tests/test_physics.py checks them."""
     case, name, old, new = MUTATIONS[mutation]
@@ -327,14 +328,14 @@ def test_the_coulomb_case_is_open_slipping_and_sticking_on_gamma3():
 
 
 def test_a_halved_coulomb_bound_in_the_residual_fails_the_manufactured_rates(tmp_path):
-    """Mutation, as MUTATIONS above: the residual's slip bound halved (forms.idp), the
+    """Mutation, as MUTATIONS above: the residual's slip bound halved (contact_forms.idp), the
     manufactured loads left with the law's own (mms.idp): the error stops converging."""
     scripts = tmp_path / "freefem"
     shutil.copytree(REPO / "freefem", scripts)
     old, new = MUTATIONS["Tresca bound"][2:]
-    text = (scripts / "forms.idp").read_text()
+    text = (scripts / "contact_forms.idp").read_text()
     assert old in text
-    (scripts / "forms.idp").write_text(text.replace(old, new, 1))
+    (scripts / "contact_forms.idp").write_text(text.replace(old, new, 1))
     layout = Layout(results=tmp_path / "results", freefem=scripts)
     rates = mms_rates(mms_errors(load_scene(COULOMB), (8, 16), layout, jobs=2, progress=quiet).assign(case="coulomb"))
     assert not rates["within_band"].all(), rates.to_string()

@@ -32,13 +32,17 @@ class Build:
     needed_for: str                # "run.ranks > 1": why a compiler is wanted
     flags: Callable[[Path, Path], list[str]]  # (source, output) -> the compiler's arguments
     timeout_s: float = 300.0
+    headers: tuple[Path, ...] = ()  # files the source includes: a change to one rebuilds it too
 
 
 def target(spec: Build) -> Path:
     try:
-        digest = hashlib.sha256(spec.source.read_bytes()).hexdigest()[:16]
+        hashed = hashlib.sha256(spec.source.read_bytes())
+        for header in spec.headers:
+            hashed.update(header.read_bytes())
+        digest = hashed.hexdigest()[:16]
     except OSError as exc:
-        raise EnvironmentFault(f"cannot read {spec.what}'s source {spec.source}: {exc.strerror}") from None
+        raise EnvironmentFault(f"cannot read {spec.what}'s source {exc.filename}: {exc.strerror}") from None
     return spec.build / f"{spec.source.stem}-{digest}.so"
 
 

@@ -16,6 +16,8 @@ from harness.core import native
 from harness.core.layout import REPO
 
 SOURCE = REPO / "freefem" / "petsc_solver.cpp"
+# The contact kernel's integrands, generated from freefem/contact_forms.idp (harness/run/contact_forms.py).
+HEADERS = (REPO / "freefem" / "contact_forms.hpp",)
 BUILD = REPO / "build"
 FREEFEM_INCLUDE = Path("/usr/include/freefem++")
 # Debian's alternative for the real-scalar PETSc (libpetsc-real3.18-dev).
@@ -25,13 +27,13 @@ PETSC_DIR = Path("/usr/lib/petscdir/petsc-real")
 def flags(source: Path, out: Path) -> list[str]:
     petsc = Path(os.environ.get("PETSC_DIR", PETSC_DIR))
     return ["-shared", "-fPIC", "-O2", "-w", "-std=c++14", "-DNDEBUG", "-DBAMG_LONG_LONG", "-DNCHECKPTR",
-            f"-I{FREEFEM_INCLUDE}", f"-I{petsc / 'include'}", "-o", str(out), str(source),
+            f"-I{FREEFEM_INCLUDE}", f"-I{HEADERS[0].parent}", f"-I{petsc / 'include'}", "-o", str(out), str(source),
             f"-Wl,-rpath,{petsc / 'lib'}", f"-L{petsc / 'lib'}", "-lpetsc_real"]
 
 
 def build_spec(build: Path = BUILD, source: Path = SOURCE) -> native.Build:
     return native.Build("the PETSc plugin", source, build, os.environ.get("MPICXX", "mpicxx"), "MPI C++ compiler",
-                        'run.linear_solver = "petsc"', flags)
+                        'run.linear_solver = "petsc"', flags, headers=HEADERS)
 
 
 def path(build: Path = BUILD, source: Path = SOURCE) -> Path:
