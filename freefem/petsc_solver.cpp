@@ -310,6 +310,38 @@ PetscErrorCode attachZone(Context &c, PC pc) {
 // coarse levels see the contact state and the conductances' coupling of the fine one.
 // On the finest level the Dirichlet rows of P are zero: a coarse correction must not move
 // a value the increment keeps at zero.
+// The Newton vector's interpolation row by row, from the nodal one: for each field (its
+// block size bs; its dofs (node, component) node-major, fields one after another) and each
+// fine dof, the coarse columns and weights of its node's nodal row, zero weights left out.
+// `row(dof, columns, weights)` sees the fine dofs in increasing order. Shared by one rank
+// (fieldInterpolation) and the ranks (ranksInterpolation).
+template <class Row>
+PetscErrorCode forEachFieldRow(Mat nodal, const std::vector<PetscInt> &blocks, Row row) {
+  PetscInt rows, cols;
+  PetscCall(MatGetSize(nodal, &rows, &cols));
+  std::vector<PetscInt> idx;
+  std::vector<PetscScalar> val;
+  PetscInt fineOffset = 0, coarseOffset = 0;
+  for (PetscInt bs : blocks) {
+    for (PetscInt i = 0; i < rows; ++i) {
+      PetscInt count;
+      const PetscInt *cj;
+      const PetscScalar *cv;
+      PetscCall(MatGetRow(nodal, i, &count, &cj, &cv));
+      for (PetscInt comp = 0; comp < bs; ++comp) {
+        idx.clear();
+        val.clear();
+        for (PetscInt k = 0; k < count; ++k)
+          if (cv[k] != 0.0) { idx.push_back(coarseOffset + cj[k] * bs + comp); val.push_back(cv[k]); }
+        PetscCall(row(fineOffset + i * bs + comp, idx, val));
+      }
+      PetscCall(MatRestoreRow(nodal, i, &count, &cj, &cv));
+    }
+    fineOffset += bs * rows;
+    coarseOffset += bs * cols;
+  }
+  return 0;
+}
 PetscErrorCode fieldInterpolation(const Context &c, Mat nodal, PetscInt fineNodes, bool finest, Mat *out) {
   PetscInt rows, cols;
   PetscCall(MatGetSize(nodal, &rows, &cols));
@@ -331,27 +363,12 @@ PetscErrorCode fieldInterpolation(const Context &c, Mat nodal, PetscInt fineNode
   if (finest) for (PetscInt i : c.dirichlet) fixed[i] = 1;
   std::vector<PetscInt> ptr(1, 0), idx;
   std::vector<PetscScalar> val;
-  PetscInt fineOffset = 0, coarseOffset = 0;
-  for (PetscInt bs : blocks) {   // rows in order: a field's dofs are (node, component) node-major
-    for (PetscInt i = 0; i < rows; ++i) {
-      PetscInt count;
-      const PetscInt *cj;
-      const PetscScalar *cv;
-      PetscCall(MatGetRow(nodal, i, &count, &cj, &cv));
-      for (PetscInt comp = 0; comp < bs; ++comp) {
-        if (!fixed[fineOffset + i * bs + comp])
-          for (PetscInt k = 0; k < count; ++k) {
-            if (cv[k] == 0.0) continue;
-            idx.push_back(coarseOffset + cj[k] * bs + comp);
-            val.push_back(cv[k]);
-          }
-        ptr.push_back((PetscInt)idx.size());
-      }
-      PetscCall(MatRestoreRow(nodal, i, &count, &cj, &cv));
-    }
-    fineOffset += bs * rows;
-    coarseOffset += bs * cols;
-  }
+  PetscCall(forEachFieldRow(nodal, blocks, [&](PetscInt dof, const std::vector<PetscInt> &cj,
+                                               const std::vector<PetscScalar> &cv) -> PetscErrorCode {
+    if (!fixed[dof]) { idx.insert(idx.end(), cj.begin(), cj.end()); val.insert(val.end(), cv.begin(), cv.end()); }
+    ptr.push_back((PetscInt)idx.size());
+    return 0;
+  }));
   PetscCall(MatCreate(PETSC_COMM_SELF, out));
   PetscCall(MatSetSizes(*out, fineSize, coarseSize, fineSize, coarseSize));
   PetscCall(MatSetType(*out, MATSEQAIJ));
@@ -1918,32 +1935,16 @@ PetscErrorCode ranksInterpolation(const RanksPart &p, Mat nodal, size_t level, M
   PetscCall(MatSetOption(*out, MAT_NEW_NONZERO_ALLOCATION_ERR, PETSC_FALSE));
   PetscInt lo, hi;
   PetscCall(MatGetOwnershipRange(*out, &lo, &hi));
-  PetscInt fineOffset = 0, coarseOffset = 0;
-  std::vector<PetscInt> idx;
-  std::vector<PetscScalar> val;
-  for (PetscInt bs : p.blocks) {
-    for (PetscInt i = 0; i < rows; ++i) {
-      PetscInt count;
-      const PetscInt *cj;
-      const PetscScalar *cv;
-      PetscCall(MatGetRow(nodal, i, &count, &cj, &cv));
-      for (PetscInt comp = 0; comp < bs; ++comp) {
-        PetscInt dof = fineOffset + i * bs + comp, row = dof;
-        bool mine = level == 0 ? p.own[dof] != 0 : (dof >= lo && dof < hi);
-        if (!mine) continue;
-        if (level == 0) row = p.index[dof];
-        idx.clear();
-        val.clear();
-        bool fixed = level == 0 && p.dirichlet[dof];
-        for (PetscInt k = 0; k < count; ++k)
-          if (cv[k] != 0.0) { idx.push_back(coarseOffset + cj[k] * bs + comp); val.push_back(fixed ? 0.0 : cv[k]); }
-        if (!idx.empty()) PetscCall(MatSetValues(*out, 1, &row, (PetscInt)idx.size(), idx.data(), val.data(), INSERT_VALUES));
-      }
-      PetscCall(MatRestoreRow(nodal, i, &count, &cj, &cv));
-    }
-    fineOffset += bs * rows;
-    coarseOffset += bs * cols;
-  }
+  std::vector<PetscScalar> zeros;
+  PetscCall(forEachFieldRow(nodal, p.blocks, [&](PetscInt dof, const std::vector<PetscInt> &cj,
+                                                 const std::vector<PetscScalar> &cv) -> PetscErrorCode {
+    bool mine = level == 0 ? p.own[dof] != 0 : (dof >= lo && dof < hi);
+    if (!mine || cj.empty()) return 0;
+    PetscInt row = level == 0 ? p.index[dof] : dof;
+    const PetscScalar *values = cv.data();
+    if (level == 0 && p.dirichlet[dof]) { zeros.assign(cv.size(), 0.0); values = zeros.data(); }
+    return MatSetValues(*out, 1, &row, (PetscInt)cj.size(), cj.data(), values, INSERT_VALUES);
+  }));
   PetscCall(MatAssemblyBegin(*out, MAT_FINAL_ASSEMBLY));
   return MatAssemblyEnd(*out, MAT_FINAL_ASSEMBLY);
 }
