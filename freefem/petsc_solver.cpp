@@ -62,6 +62,7 @@
 #include "AFunction_ext.hpp"
 #include "lgfem.hpp"
 #include "contact_forms.hpp"
+#include "lean_ilu.hpp"
 
 namespace {
 
@@ -85,6 +86,8 @@ PetscErrorCode start() {
   PetscErrorCode ierr = PetscInitializeNoArguments();
   if (ierr) return ierr;
   PetscPushErrorHandler(keepMessage, nullptr);
+  ierr = lean_ilu::registerType();
+  if (ierr) return ierr;
   started = true;
   return 0;
 }
@@ -98,13 +101,15 @@ double cpu() { return (double)std::clock() / CLOCKS_PER_SEC; }
 // The process's peak resident memory so far [MB]: VmHWM, as freefem/memory.idp reads it
 // (getrusage's ru_maxrss would count the harness's forked Python before exec). -1 where
 // there is no /proc.
-double peakMb() {
+double statusMb(const char *field) {
   std::ifstream status("/proc/self/status");
   std::string line;
+  size_t len = std::strlen(field);
   while (std::getline(status, line))
-    if (line.compare(0, 6, "VmHWM:") == 0) return std::atof(line.c_str() + 6) / 1024.0;
+    if (line.compare(0, len, field) == 0) return std::atof(line.c_str() + len) / 1024.0;
   return -1;
 }
+double peakMb() { return statusMb("VmHWM:"); }
 
 struct Context {
   KSP ksp = nullptr;
@@ -417,6 +422,79 @@ PetscErrorCode attachLevels(Context &c, PC pc) {
   PetscCall(PCMGSetGalerkin(pc, PC_MG_GALERKIN_BOTH));
   std::cout << "multigrid: " << levels << " levels" << std::endl;
   return multigridOptions(c, pc, levels);
+}
+
+// The MB of a sequential sparse matrix's arrays (values, column indices, row starts and
+// PETSc's per-row counts), from its stored entries: what -memory_breakdown prints.
+double matrixMb(Mat m) {
+  MatInfo info;
+  PetscInt rows, bs = 1;
+  MatType type;
+  if (MatGetInfo(m, MAT_LOCAL, &info) || MatGetLocalSize(m, &rows, nullptr) || MatGetType(m, &type)) return -1;
+  PetscBool blocked = PETSC_FALSE;
+  PetscObjectTypeCompareAny((PetscObject)m, &blocked, MATSEQBAIJ, MATBAIJ, "");
+  if (blocked) MatGetBlockSize(m, &bs);
+  double indices = info.nz_allocated / (double)(bs * bs) + 4.0 * rows / bs;
+  return (info.nz_allocated * sizeof(PetscScalar) + indices * sizeof(PetscInt)) / 1048576.0;
+}
+
+// -memory_breakdown (a plugin option): after a preconditioner's set-up, one line per matrix
+// it holds, each multigrid level's operator, interpolation and smoother's factor (MUMPS's: its
+// INFOG(22), the MB its factorisation used), beside the process's resident memory: where the
+// set-up's peak goes (docs/solvers.md, "Memory at the peak").
+PetscErrorCode memoryBreakdown(Context &c, const char *when) {
+  PetscBool on = PETSC_FALSE;
+  PetscCall(PetscOptionsGetBool(nullptr, c.prefix.c_str(), "-memory_breakdown", &on, nullptr));
+  if (!on) return 0;
+  std::cout << "memory " << when << ": resident " << statusMb("VmRSS:") << " MB, peak " << peakMb() << " MB"
+            << std::endl;
+  if (std::strcmp(when, "after set-up") != 0) return 0;
+  PC pc;
+  PetscBool mg = PETSC_FALSE;
+  PetscCall(KSPGetPC(c.ksp, &pc));
+  PetscCall(PetscObjectTypeCompare((PetscObject)pc, PCMG, &mg));
+  if (!mg) {
+    std::cout << "memory: operator " << matrixMb(c.op) << " MB" << std::endl;
+    return 0;
+  }
+  PetscInt levels;
+  PetscCall(PCMGGetLevels(pc, &levels));
+  for (PetscInt l = levels - 1; l >= 0; --l) {
+    KSP smoother;
+    PC spc;
+    Mat a, p, f;
+    PetscInt rows;
+    MatInfo info;
+    PetscCall(PCMGGetSmoother(pc, l, &smoother));
+    PetscCall(KSPGetOperators(smoother, &a, nullptr));
+    PetscCall(MatGetSize(a, &rows, nullptr));
+    PetscCall(MatGetInfo(a, MAT_LOCAL, &info));
+    std::cout << "memory: level " << l << " (" << rows << " rows, " << (long)info.nz_used << " entries): operator "
+              << matrixMb(a) << " MB";
+    if (l > 0) {
+      PetscCall(PCMGGetInterpolation(pc, l, &p));
+      std::cout << ", interpolation " << matrixMb(p) << " MB";
+    }
+    PetscCall(KSPGetPC(smoother, &spc));
+    PetscBool factor = PETSC_FALSE;
+    PetscCall(PetscObjectTypeCompareAny((PetscObject)spc, &factor, PCILU, PCLU, PCICC, PCCHOLESKY, ""));
+    double lean = lean_ilu::megabytes(spc);
+    if (lean >= 0) std::cout << ", factor (ilu0lean) " << lean << " MB";
+    if (factor) {
+      MatSolverType solver;
+      PetscCall(PCFactorGetMatrix(spc, &f));
+      PetscCall(MatFactorGetSolverType(f, &solver));
+      if (std::strcmp(solver, MATSOLVERMUMPS) == 0) {
+        PetscInt used;
+        PetscCall(MatMumpsGetInfog(f, 22, &used));
+        std::cout << ", MUMPS factorisation " << used << " MB";
+      } else {
+        std::cout << ", factor " << matrixMb(f) << " MB";
+      }
+    }
+    std::cout << std::endl;
+  }
+  return 0;
 }
 
 // "-pc_type gamg -mat_mumps_icntl_14 -50" with prefix p_: "-p_pc_type gamg -p_mat_mumps_icntl_14 -50"
@@ -1561,10 +1639,12 @@ long krylov(Context *c, KN<double> *b, KN<double> *x, double rtol, long reuse) {
   TRY(useOperator(c, rebuild, rtol, true, attachLevels, &step), step);
   double t0 = now(), c0 = cpu();
   if (rebuild) {
+    TRY(memoryBreakdown(*c, "before set-up"), "memory breakdown");
     TRY(KSPSetUp(c->ksp), "set-up");
     PC pc;
     TRY(KSPGetPC(c->ksp, &pc), "set-up");
     TRY(PCSetUp(pc), "preconditioner set-up");
+    TRY(memoryBreakdown(*c, "after set-up"), "memory breakdown");
     c->lastSetup = now() - t0;
     c->cpuSetup = cpu() - c0;
     c->peakSetup = peakMb();
@@ -1581,6 +1661,7 @@ long krylov(Context *c, KN<double> *b, KN<double> *x, double rtol, long reuse) {
   for (PetscInt i : c->dirichlet) (*b)[i] = 0;
   double t1 = now(), c1 = cpu();
   TRY(KSPSolve(c->ksp, vb, vx), "solve");
+  TRY(memoryBreakdown(*c, "after solve"), "memory breakdown");
   long result;
   TRY(afterSolve(c, vb, vx, t1, c1, &result), "solve");
   TRY(VecDestroy(&vb), "vector");

@@ -17,7 +17,8 @@ from harness.core.layout import REPO
 
 SOURCE = REPO / "freefem" / "petsc_solver.cpp"
 # The contact kernel's integrands, generated from freefem/contact_forms.idp (harness/run/contact_forms.py).
-HEADERS = (REPO / "freefem" / "contact_forms.hpp",)
+# The smoother's lean ILU(0), a PETSc preconditioner of the project's (freefem/lean_ilu.hpp).
+HEADERS = (REPO / "freefem" / "contact_forms.hpp", REPO / "freefem" / "lean_ilu.hpp")
 BUILD = REPO / "build"
 FREEFEM_INCLUDE = Path("/usr/include/freefem++")
 # Debian's alternative for the real-scalar PETSc (libpetsc-real3.18-dev).

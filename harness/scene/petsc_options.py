@@ -26,16 +26,22 @@ def field_split_options(fields: tuple[str, ...]) -> str:
 # geometric multigrid over the scene's nested meshes (run.multigrid_levels coarser ones),
 # the levels' operators Galerkin products of the Newton tangent; on each level but the
 # coarsest three GMRES iterations with ILU(0) as the smoother, MUMPS's LU on the coarsest.
-# Chosen by measurement (docs/solvers.md): 3D h = 1/32 in 4 Newton steps of 3-10 Krylov
-# iterations each, in 4.1 GB where a factorisation needs ~35.
-MULTIGRID = ("-ksp_type fgmres -pc_type mg -mg_levels_ksp_type gmres -mg_levels_ksp_max_it 3 "
-             "-mg_levels_pc_type ilu -mg_coarse_pc_type lu -mg_coarse_pc_factor_mat_solver_type mumps")
+# Chosen by measurement (docs/solvers.md): 3D h = 1/32 in 3 Newton steps of 3-8 Krylov
+# iterations each, in 1.5 GB where a factorisation needs ~35.
+MULTIGRID_KRYLOV = "-ksp_type fgmres -pc_type mg -mg_levels_ksp_type gmres -mg_levels_ksp_max_it 3"
+MULTIGRID_COARSE = "-mg_coarse_pc_type lu -mg_coarse_pc_factor_mat_solver_type mumps"
+# The ILU(0) is the plugin's own (-pc_type ilu0lean, freefem/lean_ilu.hpp): PETSc's ILU(0) in the
+# operator's pattern with single-precision values, a third of PETSc's factor (4 bytes an entry
+# against 12) for the same Krylov and Newton counts (docs/solvers.md, "Memory at the peak").
+MULTIGRID = f"{MULTIGRID_KRYLOV} -mg_levels_pc_type ilu0lean {MULTIGRID_COARSE}"
+# The same with PETSc's own ILU(0), the smoother before ilu0lean: the reference it is tested against.
+MULTIGRID_PETSC_ILU = f"{MULTIGRID_KRYLOV} -mg_levels_pc_type ilu {MULTIGRID_COARSE}"
 
 
 # On MPI ranks (run.ranks > 1, freefem/petsc_ranks.idp) the same multigrid over the ranks: PETSc's
 # ILU is sequential, so each level's smoother is block Jacobi with ILU(0) on each rank's block
 # (on one rank the one-rank smoother itself); the coarsest level's LU is MUMPS's, parallel.
-MULTIGRID_ON_RANKS = MULTIGRID.replace("-mg_levels_pc_type ilu", "-mg_levels_pc_type bjacobi -mg_levels_sub_pc_type ilu")
+MULTIGRID_ON_RANKS = f"{MULTIGRID_KRYLOV} -mg_levels_pc_type bjacobi -mg_levels_sub_pc_type ilu {MULTIGRID_COARSE}"
 
 
 def option_pairs(options: str) -> list[tuple[str, str]]:
