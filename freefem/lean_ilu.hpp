@@ -23,6 +23,8 @@
 #define LEAN_ILU_HPP
 
 #include <petsc/private/pcimpl.h>
+#include <algorithm>
+#include <cmath>
 #include <cstring>
 #include <vector>
 
@@ -67,20 +69,33 @@ PetscErrorCode factor(const PetscInt *ia, const PetscInt *ja, const PetscScalar 
   return 0;
 }
 
+// s minus the sum of v[p] y[ja[p]] over p in [begin, end), in four independent partial sums: a
+// single sum is a chain of dependent additions whose latency bounds the sweep (measured at 2D
+// h = 1/256: the Krylov solves 8.3 s with one sum, 7.85 s with four, PETSc's ILU 7.0 s, whose
+// solve sweeps the rows of one pattern together, its "inodes"; grouping rows so here was slower).
+template <class Real>
+inline double minusDot(double s, const PetscInt *ja, const Real *v, const PetscScalar *y, PetscInt begin,
+                       PetscInt end) {
+  double s1 = 0, s2 = 0, s3 = 0;
+  PetscInt p = begin;
+  for (; p + 3 < end; p += 4) {
+    s -= (double)v[p] * y[ja[p]];
+    s1 -= (double)v[p + 1] * y[ja[p + 1]];
+    s2 -= (double)v[p + 2] * y[ja[p + 2]];
+    s3 -= (double)v[p + 3] * y[ja[p + 3]];
+  }
+  for (; p < end; ++p) s -= (double)v[p] * y[ja[p]];
+  return (s + s1) + (s2 + s3);
+}
+
 // y = U^-1 L^-1 x with the factor's values v.
 template <class Real>
 void solve(const PetscInt *ia, const PetscInt *ja, const PetscInt *diagonal, PetscInt n, const std::vector<Real> &v,
            const PetscScalar *x, PetscScalar *y) {
-  for (PetscInt i = 0; i < n; ++i) {
-    double s = x[i];
-    for (PetscInt p = ia[i]; p < diagonal[i]; ++p) s -= (double)v[p] * y[ja[p]];
-    y[i] = s;
-  }
-  for (PetscInt i = n - 1; i >= 0; --i) {
-    double s = y[i];
-    for (PetscInt p = diagonal[i] + 1; p < ia[i + 1]; ++p) s -= (double)v[p] * y[ja[p]];
-    y[i] = s * (double)v[diagonal[i]];
-  }
+  const Real *values = v.data();
+  for (PetscInt i = 0; i < n; ++i) y[i] = minusDot(x[i], ja, values, y, ia[i], diagonal[i]);
+  for (PetscInt i = n - 1; i >= 0; --i)
+    y[i] = minusDot(y[i], ja, values, y, diagonal[i] + 1, ia[i + 1]) * (double)values[diagonal[i]];
 }
 
 // The preconditioning matrix's pattern, in place (a sequential AIJ matrix's own arrays).
