@@ -37,22 +37,26 @@ DOFS_3D_MEASURED = 93_925
 BYTES_PER_DOF_ITERATIVE = {2: 7e3, 3: 14.5e3}
 # Geometric multigrid (-pc_type mg over the nested meshes, run.multigrid_levels) holds, per
 # unknown, the plugin's one matrix (K, then K + T: FreeFEM holds no K on the PETSc path,
-# freefem/bulk.idp), the ILU(0) smoother of the finest level (that pattern again), the
-# Galerkin levels and the Krylov vectors; and, fixed, FreeFEM's start-up and the LU of the
-# coarsest level (n = 8, run.multigrid_coarsest's default), whose fill grows faster than its
-# unknowns: like N^(4/3) in 3D (nested dissection, George, SIAM J. Numer. Anal. 10, 1973) and,
-# taken as the same power, in 2D. Fitted to the paper's scenes (VmHWM, docs/solvers.md):
-# 3D h = 1/2, 1/4, 1/8, 1/16, 1/32: 66, 75, 187, 393, 1,947 MiB for 405, 2,125, 13,365,
-# 93,925, 702,405 dofs; 2D h = 1/8 ... 1/128: 65, 70, 89, 168, 476 MiB for 1,188, 4,420,
-# 17,028, 66,820, 264,708 dofs. At 3D 1/32 the matrices' share is 2.7 kB per dof; below
-# n = 8 the level's own LU is the coarse solve. The 3D start-up rose by ~3 MiB when the plugin
-# took in the contact kernel (3D h = 1/2: 68.4 MiB).
+# freefem/bulk.idp), the ILU(0) smoother of the finest level (the plugin's lean one: that
+# pattern's values again in single precision, a third of the matrix), the Galerkin levels and
+# the Krylov vectors; and, fixed, FreeFEM's start-up and the LU of the coarsest level (n = 8,
+# run.multigrid_coarsest's default), whose fill grows faster than its unknowns: like N^(4/3) in
+# 3D (nested dissection, George, SIAM J. Numer. Anal. 10, 1973) and, taken as the same power, in
+# 2D. Fitted to the paper's scenes (VmHWM, docs/solvers.md "Memory at the peak"): 3D h = 1/2,
+# 1/4, 1/8, 1/16, 1/32, 1/64: 68, 77, 188, 344, 1,496, 10,342 MiB for 405, 2,125, 13,365, 93,925,
+# 702,405, 5,429,125 dofs (the zero branch; the pressed one within 3 MiB, at 1/64 10,375);
+# 2D h = 1/8 ... 1/512: 67, 71, 86, 146, 383, 1,318, 5,068 MiB for 1,188, 4,420, 17,028,
+# 66,820, 264,708, 1,053,700 and 4,204,548 dofs. At 3D 1/32 the matrices' share is 1.9 kB per dof (2.6
+# with PETSc's own ILU(0), a second matrix of 12 bytes an entry); below n = 8 the level's own LU
+# is the coarse solve. The 3D start-up rose by ~3 MiB when the plugin took in the contact kernel
+# (3D h = 1/2: 68.4 MiB).
 MULTIGRID_START_MIB = {2: 60.0, 3: 63.0}
-MULTIGRID_MIB_PER_DOF = {2: 1.58e-3, 3: 2.55e-3}
+MULTIGRID_MIB_PER_DOF = {2: 1.2e-3, 3: 1.9e-3}
 # The LU of the paper's coarsest level (dofs, MiB): 3D n = 8, 2D n = 8; another size scales it.
 MULTIGRID_COARSE_LU = {2: (1_188, 3.5), 3: (13_365, 93.0)}
 MULTIGRID_COARSEST = 8
-# The measured peaks lie within 6 % below the fit; the guard counts 10 % above it.
+# The measured peaks lie between 5 % above the fit (3D h = 1/2) and 1 % below it (3D h = 1/64);
+# the guard counts 10 % above it.
 MULTIGRID_MARGIN = 1.1
 # MSH 2.2 text per mesh node: a node line (~60 characters) and two triangle lines (~30
 # each); in 3D, six tetrahedron lines (~40 each).
