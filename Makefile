@@ -19,7 +19,7 @@ convergence: $(STAMP) freefem
 	$(PY) -m harness convergence cases/paper.toml
 
 # The paper's block in 3D on both branches, h = 1/2 ... 1/64 against h = 1/64 (PETSc's geometric
-# multigrid at the finest levels; h = 1/64 has 5.4 M unknowns and peaks near 15 GB), into
+# multigrid at the finest levels; h = 1/64 has 5.4 M unknowns and peaks near 11 GB), into
 # results/paper3d/ and results/paper3d_pressed/, one branch after the other. A machine whose
 # large runs take turns names its lock: make paper3d PAPER3D_LOCK="flock /work/bigmem.lock".
 PAPER3D_LOCK ?=
@@ -30,7 +30,7 @@ paper3d: $(STAMP) freefem
 
 # A convergence study of every scene in cases/ and one table of their unknowns, dofs,
 # times and slopes (results/scenes/summary.csv). paper3d's study is make paper3d's zero branch,
-# to h = 1/64 (~15 GB; its levels are reused when make paper3d has run them).
+# to h = 1/64 (~11 GB; its levels are reused when make paper3d has run them).
 scenes: $(STAMP) freefem
 	$(PY) -m harness scenes $(CLUSTER_FLAGS)
 
