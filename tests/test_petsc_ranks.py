@@ -205,3 +205,43 @@ def test_a_petsc_fault_on_ranks_is_one_line_its_exit_code_and_no_process_left(ca
     assert len(err) == 1 and err[0].startswith("error: ") and all(w in err[0] for w in words), err
     assert not freefem_processes_under(results), "a rank outlived the failed run"
     assert (results / "paper").is_dir() and not list((results / "paper").glob(".tmp-*"))
+
+
+def test_a_rank_killed_during_a_petsc_solve_is_one_line_exit_3_and_no_process_left(tmp_path):
+    """SIGKILL to one of two ranks: the launcher ends the other, the harness says which signal in one line
+    (a half-written run.json of the ranks does not hide it), and the level is not written."""
+    import os
+    import signal
+    import subprocess
+    import sys
+    import time
+
+    from test_reliability import alive, descendants, one_error, wait_for
+
+    results = tmp_path / "results"
+    proc = subprocess.Popen([sys.executable, "-m", "harness", "solve", str(CASES / "paper.toml"), "--n", "64",
+                             "--set", "run.ranks=2", "--set", 'run.linear_solver="petsc"', "--results", str(results)],
+                            cwd=CASES.parent, stdout=subprocess.PIPE, stderr=subprocess.PIPE)
+
+    def ranks() -> list[int]:
+        found = []
+        for pid in descendants(proc.pid):
+            try:
+                if Path(f"/proc/{pid}/comm").read_text().strip() == "FreeFem++-mpi":
+                    found.append(pid)
+            except OSError:  # ended meanwhile
+                pass
+        return found
+
+    wait_for(lambda: len(ranks()) == 2 or proc.poll() is not None, timeout=60)
+    assert proc.poll() is None, proc.communicate()
+    time.sleep(0.5)  # inside a level's run (the chain 2 ... 64 runs one level after another)
+    tree = descendants(proc.pid)
+    os.kill(ranks()[-1], signal.SIGKILL)
+    _, err = proc.communicate(timeout=60)
+    lines = err.decode().strip().splitlines()
+    assert proc.returncode == ExitCode.RUN, lines
+    one_error(lines, "killed by signal SIGKILL")
+    wait_for(lambda: not any(alive(pid) for pid in tree), timeout=10)
+    case = results / "paper"
+    assert not list(case.glob(".tmp-*")) and not (case / "n64").exists()

@@ -92,11 +92,12 @@ def check_guards(plan: Plan) -> None:
             print(f"warning: {warning}", file=sys.stderr)
         if plan.nested:
             check_nested(levels)
+        given = item.levels and tuple(item.levels) != tuple(scene.levels)
+        check_slope_levels(levels, item.slope, "--levels" if given else f"{scene.source} [study] levels")
+        if plan.nested:
             for case_dir in plan.scene_dirs:
                 if case_dir.name == scene.name:
                     check_not_shallower(case_dir, levels)
-        given = item.levels and tuple(item.levels) != tuple(scene.levels)
-        check_slope_levels(levels, item.slope, "--levels" if given else f"{scene.source} [study] levels")
         for n in levels:
             fewer = check_level_ranks(scene, n)
             if fewer:
