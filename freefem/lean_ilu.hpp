@@ -9,7 +9,7 @@
 // 12 bytes an entry. Sharing the pattern leaves 8 bytes an entry in double, 4 in single. A
 // smoother needs no more than single precision: the factor is already an approximation of the
 // operator, and the outer Krylov method works on the double-precision operator and residual
-// (mixed-precision ILU preconditioning: Carson and Khan, "Mixed precision iterative refinement
+// (mixed-precision preconditioning: Carson and Khan, "Mixed precision iterative refinement
 // with sparse approximate inverse preconditioning", SIAM J. Sci. Comput. 45, 2023; Goebel,
 // Gruetzmacher, Ribizel and Anzt, "Mixed precision incomplete and factorized sparse approximate
 // inverse preconditioning on GPUs", Euro-Par 2021).
@@ -59,12 +59,20 @@ PetscErrorCode factor(const PetscInt *ia, const PetscInt *ja, const PetscScalar 
       if (l != 0.0)
         for (PetscInt q = diagonal[k] + 1; q < ia[k + 1]; ++q) w[ja[q]] -= l * (double)v[q];
     }
-    for (PetscInt p = ia[i]; p < ia[i + 1]; ++p) v[p] = (Real)w[ja[p]];
     double pivot = w[i];
     if (pivot == 0.0 || !std::isfinite(pivot))
       SETERRQ(PETSC_COMM_SELF, PETSC_ERR_MAT_LU_ZRPVT, "ILU(0) (-pc_type ilu0lean): pivot %g in row %" PetscInt_FMT,
               pivot, i);
-    v[diagonal[i]] = (Real)(1.0 / pivot);
+    w[i] = 1.0 / pivot;
+    // Single precision holds magnitudes up to 3.4e38: a larger entry (an unscaled system) would
+    // become infinite and spoil every solve; say so rather than smooth with it.
+    for (PetscInt p = ia[i]; p < ia[i + 1]; ++p) {
+      v[p] = (Real)w[ja[p]];
+      if (!std::isfinite((double)v[p]))
+        SETERRQ(PETSC_COMM_SELF, PETSC_ERR_FP,
+                "ILU(0) (-pc_type ilu0lean): row %" PetscInt_FMT " holds %g, beyond single precision's range "
+                "(-pc_ilu0lean_values double keeps it)", i, w[ja[p]]);
+    }
   }
   return 0;
 }
