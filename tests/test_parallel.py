@@ -70,6 +70,20 @@ def test_two_ranks_give_the_one_rank_solution_on_the_paper_scene(tmp_path):
     assert len(parallel["factorisations_by_step"]) == record.newton_iterations + 1
 
 
+@pytest.mark.skipif(bool(mpi_missing()), reason=mpi_missing() or "-")
+def test_a_theta_one_rank_staggers_gives_its_solution_on_two_ranks_with_the_sequential_pass(tmp_path):
+    """heated (thermal without thermal contact) on the script's GMRES and RAS: the ranks solve theta in
+    their Newton system, and the sequential pass that reads their state has the same unknowns."""
+    results = tmp_path / "results"
+    one = solve(CASES / "heated.toml", 8, results, "scene.name=one")
+    two = solve(CASES / "heated.toml", 8, results, "scene.name=two", "run.ranks=2")
+    assert one.record.strategy.startswith("staggered") and two.record.strategy.startswith("monolithic")
+    assert two.record.post_pass_peak_rss_mb > 0
+    for name, a, b in zip(("u", "phi", "theta"), read_state(results / "one/n8/state.txt"),
+                          read_state(results / "two/n8/state.txt")):
+        assert np.abs(a - b).max() <= RTOL * np.abs(a).max(), name   # measured: 5e-15
+
+
 def test_launcher_command_puts_the_script_after_the_launcher():
     argv = Ranks(4, "srun -n {ranks} FreeFem++-mpi").argv(Path("/w/main.edp"), ["-n", "8"])
     assert argv == ["srun", "-n", "4", "FreeFem++-mpi", "main.edp", "-nw", "-v", "0", "-n", "8"]
@@ -90,7 +104,6 @@ def test_the_post_pass_reads_the_ranks_record_and_takes_no_newton_step(tmp_path)
 
 @pytest.mark.parametrize("override, message", [
     ("scene.element=P2", "P1"),
-    ('scene.effects=["piezoelectric", "thermal", "contact"]', "staggered"),
 ])
 def test_what_the_ranks_cannot_do_is_refused_before_running(override, message, tmp_path):
     from harness.run.launcher import check_parallel
@@ -98,6 +111,20 @@ def test_what_the_ranks_cannot_do_is_refused_before_running(override, message, t
     with pytest.raises(SceneError, match=message):
         check_parallel(scene)
     check_parallel(load_scene(CASES / "paper.toml", [override]))  # one rank: anything goes
+
+
+def test_a_staggered_theta_is_in_the_ranks_newton_system():
+    """One rank solves a one-way coupled theta first (harness/scene/unknowns.py); the distributed
+    scheme has one Newton system, so on ranks theta is in it (test_petsc_ranks.py: the same solution)."""
+    from harness.run.launcher import check_parallel
+    from harness.scene.unknowns import Unknowns
+    effects = ("piezoelectric", "thermal", "contact")
+    override = "scene.effects=" + repr(list(effects)).replace("'", '"')
+    check_parallel(load_scene(CASES / "paper.toml", ["run.ranks=2", override]))
+    one, ranks = Unknowns(effects, 2), Unknowns(effects, 2, monolithic=True)
+    assert one.staggered and [f.name for f in one.newton] == ["u", "phi"]
+    assert not ranks.staggered and [f.name for f in ranks.newton] == ["u", "phi", "theta"]
+    assert "macro STAGGEREDTHETA 1 //" in one.macros() and "macro NEWTONTHETA 1 //" in ranks.macros()
 
 
 def test_ff_mpirun_gets_each_argument_quoted_for_its_eval():

@@ -1,7 +1,7 @@
 """PETSc across MPI ranks (run.ranks > 1 with run.linear_solver = "petsc": freefem/petsc_ranks.idp and the
 plugin's "Distributed solves", freefem/petsc_solver.cpp): the distributed matrix summed from the ranks'
 subdomains and PETSc's Krylov method and preconditioner across them give the one-rank PETSc solution to
-round-off, on 2 and 4 ranks, in 2D and 3D, for the monolithic effect sets and both branches, and the ranks
+round-off, on 2 and 4 ranks, in 2D and 3D, for every effect set (a staggered theta included) and both branches, and the ranks
 write what a one-rank run writes (run.json's checks, estimates and extremes, solution.vtu, state.txt) to
 round-off with no sequential pass after them; a bad option string and a PETSc error inside the Krylov solve
 are one line, their exit code and no process left."""
@@ -122,12 +122,20 @@ def close(a, b, scale: float = 0.0) -> bool:
 def assert_one_rank_outputs(one: Path, many: Path) -> None:
     """The ranks' run.json, solution.vtu and state.txt are the one-rank run's to round-off."""
     a, b = (json.loads((d / "run.json").read_text()) for d in (one, many))
-    for key in ("nodes", "dofs", "newton_dofs", "fields"):
+    for key in ("nodes", "dofs", "fields"):
         assert a[key] == b[key], key
+    # A staggered theta (one rank) is in the ranks' Newton system (harness/scene/unknowns.py).
+    staggered = a["strategy"].startswith("staggered")
+    assert b["newton_dofs"] == (a["dofs"] if staggered else a["newton_dofs"])
     ca, cb = a["checks"], b["checks"]
     assert ca["open_nodes"] == cb["open_nodes"]
     for key, value in ca.items():
-        if key not in NEWTON_CHECKS and key != "open_nodes":
+        if staggered and key.endswith("_reading"):
+            # A reading is a round-off scale, sum |K_ii x_i| + |b_i| (checks.idp); a staggered theta's coupling
+            # is in b on one rank and in K x on the ranks, which moves it by a few per cent (heated at n = 8:
+            # force_reading 2.12e9 against 2.06e9). The checks judge on a multiple of it: same order is enough.
+            assert abs(value - cb[key]) <= 0.1 * max(abs(value), abs(cb[key])), (key, value, cb[key])
+        elif key not in NEWTON_CHECKS and key != "open_nodes":
             assert close(value, cb[key], ca.get(CHECK_SCALES.get(key, ""), 0.0)), (key, value, cb[key])
     for key, scale in TOP_SCALES.items():
         assert close(a[key], b[key], ca.get(scale, 0.0)), (key, a[key], b[key])
@@ -151,10 +159,12 @@ def assert_one_rank_outputs(one: Path, many: Path) -> None:
     assert close(np.concatenate(ia), np.concatenate(ib)), "error_indicator"
 
 
-# The 2D scenes whose Newton system is monolithic (a staggered theta is refused on ranks,
-# test_parallel.py), each from the start its studies use, and the paper scene from both.
+# Every 2D effect set, each from the start its studies use, and the paper scene from both. heated's theta is
+# staggered on one rank (thermal without thermal contact) and in the ranks' monolithic Newton system: the same
+# discrete equations, so the same solution to round-off.
 @pytest.mark.parametrize("case, guess", [("elastic", "zero"), ("electroelastic", "zero"),
-                                         ("thermoelastic", "pressed"), ("paper", "zero"), ("paper", "pressed")])
+                                         ("thermoelastic", "pressed"), ("heated", "zero"), ("paper", "zero"),
+                                         ("paper", "pressed")])
 def test_petsc_on_two_and_four_ranks_gives_the_one_rank_solution_in_2d(tmp_path, case, guess):
     assert_one_rank_solution(tmp_path, case, 8, (2, 4), guess)
 
@@ -214,3 +224,43 @@ def test_a_petsc_fault_on_ranks_is_one_line_its_exit_code_and_no_process_left(ca
     assert len(err) == 1 and err[0].startswith("error: ") and all(w in err[0] for w in words), err
     assert not freefem_processes_under(results), "a rank outlived the failed run"
     assert (results / "paper").is_dir() and not list((results / "paper").glob(".tmp-*"))
+
+
+def test_a_rank_killed_during_a_petsc_solve_is_one_line_exit_3_and_no_process_left(tmp_path):
+    """SIGKILL to one of two ranks: the launcher ends the other, the harness says which signal in one line
+    (a half-written run.json of the ranks does not hide it), and the level is not written."""
+    import os
+    import signal
+    import subprocess
+    import sys
+    import time
+
+    from test_reliability import alive, descendants, one_error, wait_for
+
+    results = tmp_path / "results"
+    proc = subprocess.Popen([sys.executable, "-m", "harness", "solve", str(CASES / "paper.toml"), "--n", "64",
+                             "--set", "run.ranks=2", "--set", 'run.linear_solver="petsc"', "--results", str(results)],
+                            cwd=CASES.parent, stdout=subprocess.PIPE, stderr=subprocess.PIPE)
+
+    def ranks() -> list[int]:
+        found = []
+        for pid in descendants(proc.pid):
+            try:
+                if Path(f"/proc/{pid}/comm").read_text().strip() == "FreeFem++-mpi":
+                    found.append(pid)
+            except OSError:  # ended meanwhile
+                pass
+        return found
+
+    wait_for(lambda: len(ranks()) == 2 or proc.poll() is not None, timeout=60)
+    assert proc.poll() is None, proc.communicate()
+    time.sleep(0.5)  # inside a level's run (the chain 2 ... 64 runs one level after another)
+    tree = descendants(proc.pid)
+    os.kill(ranks()[-1], signal.SIGKILL)
+    _, err = proc.communicate(timeout=60)
+    lines = err.decode().strip().splitlines()
+    assert proc.returncode == ExitCode.RUN, lines
+    one_error(lines, "killed by signal SIGKILL")
+    wait_for(lambda: not any(alive(pid) for pid in tree), timeout=10)
+    case = results / "paper"
+    assert not list(case.glob(".tmp-*")) and not (case / "n64").exists()

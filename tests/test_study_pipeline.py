@@ -87,3 +87,18 @@ def test_the_transaction_owns_every_file_of_an_output_directory(tmp_path):
     with StudyTransaction(outputs=(out,)):
         write_text("new", out / "cost.csv")
     assert (out / "cost.csv").read_text() == "new" and not list(out.glob(f"{BACKUP_PREFIX}*"))
+
+
+def test_a_study_on_fewer_levels_refuses_to_replace_a_finer_one(capsys, tmp_path):
+    """`scenes` runs each scene on its case's levels; a study run by hand to a finer level in the
+    same folder must not be replaced by a shallower one without a word."""
+    argv = ["convergence", str(PAPER), "--results", str(tmp_path), "--freefem", str(STUB)]
+    assert main([*argv, "--levels", "2,4,8,16"]) == 0
+    summary = tmp_path / "paper" / "summary.json"
+    before = summary.read_text()
+    capsys.readouterr()
+    assert main([*argv, "--levels", "2,4,8"]) == ExitCode.INPUT
+    (line,) = errors(capsys)
+    assert "n = 16" in line and "n = 8" in line and "2,4,8,16" in line
+    assert summary.read_text() == before and not (tmp_path / "paper" / "n2.failed").exists()
+    assert main([*argv, "--levels", "4,8,16"]) == 0  # the same finest level replaces it

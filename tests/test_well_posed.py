@@ -103,3 +103,20 @@ def test_a_body_that_only_slipping_friction_holds_fails_with_one_line_saying_so(
     assert "every contact node slips" in err[0] and "clamp a part, add rollers or raise the slip bound" in err[0]
     held = main(["solve", str(PAPER), "--n", "2", "--results", str(tmp_path / "sticks"), *sets, "--set", "contact.S=50"])
     assert held == ExitCode.OK
+
+
+def test_a_converged_slide_that_any_shift_also_solves_is_refused_not_returned(tmp_path, capsys):
+    """At n = 8 from zero the free-ended paper scene converges with every quadrature point of Gamma_3
+    slipping (|c_nu u_tau| >= S: 8.50 and 13.7 N/m^2 nearest the bound): any rigid shift along x that
+    keeps each point's slip direction solves it too, so the run exits 3 naming that; at n = 16 two
+    points stick (every node still slips) and there is one solution, returned."""
+    sets = [word for item in FREE_ENDS for word in ("--set", item)]
+    zero = ["--set", 'scene.initial_guess="zero"']
+    code = main(["solve", str(PAPER), "--n", "8", "--results", str(tmp_path / "n8"), *sets, *zero])
+    err = capsys.readouterr().err.strip().splitlines()
+    assert code == ExitCode.RUN
+    assert len(err) == 1 and "not unique" in err[0] and "any slide along it is a solution too" in err[0], err
+    assert not (tmp_path / "n8" / "paper" / "n8").exists()
+    held = main(["solve", str(PAPER), "--n", "8", "--results", str(tmp_path / "S50"), *sets, *zero,
+                 "--set", "contact.S=50"])
+    assert held == ExitCode.OK

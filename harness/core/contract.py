@@ -79,6 +79,7 @@ class Failure(enum.Enum):
     LINEAR_SOLVER = (17, "the Krylov solver did not converge")
     BAD_ELECTRODES = (18, "an electrode shares a node with a clamped or ground part (two potentials at one point)")
     BAD_FLOATING = (19, "a floating electrode shares a node with a part of fixed potential (clamped, ground, electrode) or with another floating electrode")
+    NOT_UNIQUE = (20, "the solution is not unique: the body can slide along its contact")
     TIMEOUT = (None, "timed out")
     KILLED = (None, "killed by a signal")
     NO_OUTPUT = (None, "FreeFEM wrote no readable output")
@@ -113,7 +114,7 @@ class Failure(enum.Enum):
 # The codes FreeFEM scripts of this project raise themselves (the others are FreeFEM's own).
 SCRIPT_FAILURES = (Failure.DIVERGED, Failure.NAN, Failure.MAX_ITERATIONS, Failure.BAD_INITIAL_GUESS,
                    Failure.INVALID_MATERIAL, Failure.BAD_DECOMPOSITION, Failure.BAD_SOLVER_OPTIONS,
-                   Failure.LINEAR_SOLVER, Failure.BAD_ELECTRODES, Failure.BAD_FLOATING,
+                   Failure.LINEAR_SOLVER, Failure.BAD_ELECTRODES, Failure.BAD_FLOATING, Failure.NOT_UNIQUE,
                    Failure.INTERNAL)  # INTERNAL: the PETSc plugin refusing a bulk block (freefem/bulk.idp)
 
 

@@ -194,7 +194,15 @@ def failure_of(outcome: Outcome) -> Failure:
     code = outcome.returncode
     if code is None:
         return Failure.TIMEOUT
-    return Failure.KILLED if code < 0 else Failure.from_code(code)
+    return Failure.KILLED if code < 0 or shell_signal(code) else Failure.from_code(code)
+
+
+def shell_signal(code: int) -> int | None:
+    """The signal behind an exit code 128 + N, the form in which a shell or an MPI launcher
+    reports a child (a rank) that a signal ended; None for FreeFEM's own codes."""
+    if code in EXIT_REASONS or not 128 < code < 128 + 65:
+        return None
+    return code - 128
 
 
 def failure_reason(outcome: Outcome, timeout_s: float, detail: str, pressed: bool = False) -> str:
@@ -203,11 +211,13 @@ def failure_reason(outcome: Outcome, timeout_s: float, detail: str, pressed: boo
     code = outcome.returncode
     if code is None:
         return f"timed out after {timeout_s:g} s (process group killed)"
-    if code < 0:
+    number = -code if code < 0 else shell_signal(code)
+    if number:
         try:
-            return f"killed by signal {signal.Signals(-code).name}"
+            name = signal.Signals(number).name
         except ValueError:
-            return f"killed by signal {-code}"
+            name = str(number)
+        return f"killed by signal {name}" + (f" (exit code {code}: a rank or the launcher)" if code > 0 else "")
     reason = EXIT_REASONS.get(code, f"FreeFEM exited with code {code}")
     if code == Failure.DIVERGED.code and not pressed:
         reason += PRESSED_HINT

@@ -4,6 +4,7 @@ disk, and a solution must stay in the small-strain range the model assumes."""
 from __future__ import annotations
 
 import enum
+import json
 import math
 import os
 from pathlib import Path
@@ -96,6 +97,22 @@ def check_nested(levels: tuple[int, ...]) -> None:
         if fine % coarse:
             raise SceneError(f"levels {','.join(map(str, ordered))} are not nested: {fine} is not a multiple "
                              f"of {coarse} (use levels that double, e.g. 2,4,8,16)")
+
+
+def check_not_shallower(case_dir: Path, levels: tuple[int, ...]) -> None:
+    """Refuse a study that would replace a finer one already in `case_dir`: a batch run
+    (`scenes`) on a scene's own levels must not silently throw away a deeper study someone
+    ran by hand, which may have taken hours. The user extends the levels, removes the old
+    study, or writes elsewhere."""
+    summary = case_dir / "summary.json"
+    try:
+        recorded = [int(n) for n in json.loads(summary.read_text()).get("levels", [])]
+    except (OSError, ValueError, TypeError, AttributeError):
+        return  # no complete study there (or an unreadable one, which the transaction replaces)
+    if recorded and levels and max(recorded) > max(levels):
+        raise SceneError(f"{case_dir} holds a study to n = {max(recorded)} and this one stops at n = {max(levels)}: "
+                         f"it would replace the finer study. Run levels {','.join(map(str, sorted(set(levels) | set(recorded))))}, "
+                         f"write elsewhere with --results DIR, or remove {case_dir} first")
 
 
 def unknowns_per_node(effects: tuple[str, ...], dimension: int = 2) -> int:

@@ -34,7 +34,6 @@ from harness.core.contract import Failure
 from harness.core.errors import RunError, SceneError
 from harness.core.guards import geometry_depth, level_nodes
 from harness.scene.linear_solvers import accepting
-from harness.scene.unknowns import Unknowns
 
 MPI_PLUGIN_PATH = "/usr/lib/freefem++/mpi"  # plugins built against MPI (the others abort in FreeFem++-mpi)
 IDP_PATH = "/usr/include/freefem++/idp"  # macro_ddm.idp, from Debian's libfreefem++-dev
@@ -123,9 +122,6 @@ def check_parallel(scene: Any) -> None:
     if not scene.solver.on_ranks:
         raise SceneError(f"run.ranks > 1 factorises each subdomain with a sparse direct solver: use run.linear_solver "
                          f"= {accepting('on_ranks')} there; {scene.linear_solver!r} solves on one rank")
-    if Unknowns(scene.effects, scene.dimension).staggered:
-        raise SceneError("run.ranks > 1 solves the monolithic Newton system only: this scene's theta is staggered "
-                         "(thermal without thermal_contact); solve it on one rank")
 
 
 def outputs_on_ranks(scene: Any) -> bool:

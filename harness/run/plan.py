@@ -143,7 +143,7 @@ def invocation(scene: Scene, mesh: Path, n: int, layout: Layout, guess: str, sta
     text = main_script(scene.material, scene.effects, layout, element=scene.element, macros=macros,
                        definitions=definitions, linear_solver=solver,
                        plugin=petsc_plugin.path() if solver.builds_plugin else None,
-                       ranks=parallel, dimension=scene.dimension)
+                       ranks=parallel, monolithic=launcher.ranks_of(scene).parallel, dimension=scene.dimension)
     directory = mesh.resolve().parent
     options = ["-mesh", str(mesh.resolve()), "-out", UNBOUND, "-n", str(n)]
     options += freefem.scene_options(scene.solver_parameters(), guess)

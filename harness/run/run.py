@@ -224,15 +224,20 @@ def collect(
     time less its `waited` seconds); a RunError with the reason if it failed."""
     where = f"{scene.name} n={n}"
     log = log_file(work, layout.failed_dir(scene.name, n))
-    record = read_run_json(work)
     if outcome.returncode != 0:
-        # (A distributed solve that failed wrote its run.json on the ranks.)
+        # (A distributed solve that failed wrote its run.json on the ranks; one whose rank was killed may
+        # have left it half written, which must not hide why the run failed.)
+        try:
+            record = read_run_json(work)
+        except HarnessError:
+            record = None
         solved_by = record.reason if record else None
         if record and record.failure_hint:
             solved_by = f"{solved_by}: {record.failure_hint}"
         detail = solved_by or freefem.error_detail(read_logs(work))
         reason = freefem.failure_reason(outcome, scene.timeout_s, str(detail), started_pressed(scene, guess))
         raise RunError(f"{where}: {reason} (see {log})", freefem.failure_of(outcome))
+    record = read_run_json(work)
     if record is None:
         raise RunError(f"{where}: FreeFEM wrote no readable run.json (see {log})", Failure.NO_OUTPUT)
     if record.converged is not True:

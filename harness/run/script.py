@@ -34,10 +34,13 @@ def main_script(
     plugin: Path | None = None,
     definitions: Sequence[str] = (),
     ranks: bool = False,
+    monolithic: bool = False,
 ) -> str:
     """`plugin`: the built plugin of a solver that builds one (harness/run/petsc_plugin.py);
     `definitions`: FreeFEM lines written as they are after the macros (material regions);
-    `ranks`: the scheme's N-rank backend (freefem/ranks.idp, run.ranks > 1, FreeFem++-mpi)."""
+    `ranks`: the scheme's N-rank backend (freefem/ranks.idp, run.ranks > 1, FreeFem++-mpi);
+    `monolithic`: theta in the Newton system even where one rank staggers it (a run on ranks, and
+    the sequential pass that reads its state)."""
     lines = ["// Written by the harness (harness/run/script.py); edit the scene, not this file."]
     if ranks:
         lines.append("macro PARALLELSCHEME 1 //")
@@ -45,7 +48,7 @@ def main_script(
     lines += [f"macro {effect_macro(e)} 1 //" for e in effects]
     lines.append(f"macro ELEMENT {element} //")
     # The fields' code, and the dimension of the displacement (harness/scene/unknowns.py).
-    lines += Unknowns(tuple(effects), dimension).macros()
+    lines += Unknowns(tuple(effects), dimension, monolithic=ranks or monolithic).macros()
     for name, body in (macros or {}).items():
         # "NAME (body)" would read as a macro with parameters; "NAME() (body)" is used bare.
         lines.append(f"macro {name}() ({body}) //")

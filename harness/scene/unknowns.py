@@ -15,7 +15,10 @@ theta with the thermal effect. theta feeds back into u and phi (thermal expansio
 pyroelectric P) but depends on them only through the thermal contact conductance
 p_c(u_nu - g) (paper 2.15). Without thermal contact it is one-way coupled: it is solved
 first, alone and linearly, and enters the Newton system for (u, phi) as a load
-("staggered"). With it, all fields are solved together.
+("staggered"). With it, all fields are solved together. On several ranks theta is always
+solved with the others (`monolithic`): the distributed scheme has one Newton system, and the
+monolithic Newton solves the same discrete equations, so its answer is the staggered one's to
+the solver's round-off (tests/test_petsc_ranks.py).
 
 The dimension enters here too: the displacement's components (u1, u2 in 2D).
 """
@@ -56,6 +59,7 @@ BULK_BLOCKS = (("u", "u", None), ("u", "p", "piezoelectric"), ("p", "u", "piezoe
 class Unknowns:
     effects: tuple[str, ...]
     dimension: int = 2
+    monolithic: bool = False   # theta in the Newton system even without thermal contact (ranks)
 
     @property
     def fields(self) -> tuple[Field, ...]:
@@ -67,7 +71,7 @@ class Unknowns:
     @property
     def staggered(self) -> bool:
         """theta solved first, alone (see the module's docstring)."""
-        return "thermal" in self.effects and "thermal_contact" not in self.effects
+        return "thermal" in self.effects and "thermal_contact" not in self.effects and not self.monolithic
 
     @property
     def newton(self) -> tuple[Field, ...]:

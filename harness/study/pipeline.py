@@ -27,8 +27,8 @@ from typing import Callable, Sequence, TypeVar
 from harness.core.atomic import StudyTransaction
 from harness.core.errors import VerdictError
 from harness.core.faults import check_results_root, naming
-from harness.core.guards import (Slope, check_memory, check_nested, check_slope_levels, geometry_depth, mesh_file_bytes,
-                            need_disk)
+from harness.core.guards import (Slope, check_memory, check_nested, check_not_shallower, check_slope_levels,
+                                 geometry_depth, mesh_file_bytes, need_disk)
 from harness.run.launcher import check_level_ranks
 from harness.scene.scene import Scene, load_scene
 
@@ -94,6 +94,10 @@ def check_guards(plan: Plan) -> None:
             check_nested(levels)
         given = item.levels and tuple(item.levels) != tuple(scene.levels)
         check_slope_levels(levels, item.slope, "--levels" if given else f"{scene.source} [study] levels")
+        if plan.nested:
+            for case_dir in plan.scene_dirs:
+                if case_dir.name == scene.name:
+                    check_not_shallower(case_dir, levels)
         for n in levels:
             fewer = check_level_ranks(scene, n)
             if fewer:
