@@ -1733,6 +1733,9 @@ long ranksAbort(long const &code) {
 // An error inside the Krylov solve or its preconditioner's set-up (a failed factorisation,
 // -ksp_error_if_not_converged, ...): the solve failed, not the options (freefem/petsc_ranks.idp).
 const long kKrylovError = -4;
+// A broken invariant of the plugin itself, not the user's options or the solve (exit INTERNAL).
+const long kInternalError = -5;
+bool internalFault = false;
 #define TRYKRYLOV(call, where) do { PetscErrorCode ierr_ = (call); if (ierr_) { failRanks(ierr_, where); return kKrylovError; } } while (0)
 
 RanksPart *partOf(long id) {
@@ -2038,7 +2041,8 @@ PetscErrorCode refillOperator(const RanksPart &p, Matrice_Creuse<double> *T, Mat
       if (p.weight[i] == 0 || p.refill[i] || p.dirichlet[i]) continue;
       for (auto q = t->p[i]; q < t->p[i + 1]; ++q)
         if (t->aij[q] != 0) {
-          lastMessage = "the contact tangent has a value outside the contact rows kept aside";
+          lastMessage = "the contact tangent has a value outside the contact rows kept aside (an internal error)";
+          internalFault = true;
           return PETSC_ERR_ARG_WRONG;
         }
     }
@@ -2148,7 +2152,14 @@ long ranksSolve(long const &id, long const &bulk, Matrice_Creuse<double> *const 
   // smoother's block-Jacobi ILU, a one-level multigrid's LU) see it change and set up again at
   // their next solve (3D n = 8 on 2 ranks: 1 Krylov iteration a step where the stale LU of a
   // second matrix took 10-13).
-  if (reuse < 2 || !c->op) TRYRANKS(ranksOperator(*p, *k, T, &c->op), "matrix K + T");
+  if (reuse < 2 || !c->op) {
+    internalFault = false;
+    PetscErrorCode ierr = ranksOperator(*p, *k, T, &c->op);
+    if (ierr) {
+      long code = failRanks(ierr, "matrix K + T");
+      return internalFault ? kInternalError : code;
+    }
+  }
   c->cpuOperator = cpu() - c0;
   c->wallOperator = now() - w0;
   c->peakOperator = peakMb();
