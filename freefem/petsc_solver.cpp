@@ -49,6 +49,7 @@
 #include <chrono>
 #include <ctime>
 #include <fstream>
+#include <functional>
 #include <cstdlib>
 #include <algorithm>
 #include <limits>
@@ -131,6 +132,7 @@ struct Context {
   PetscInt lastIts = 0, totalIts = 0, setups = 0, solves = 0;
   double lastResidual = 0, lastSetup = 0, lastSolve = 0, totalSetup = 0, totalSolve = 0;
   double cpuOperator = 0, cpuSetup = 0, cpuSolve = 0;   // CPU seconds of the last call's pieces
+  double wallOperator = 0;   // wall seconds of the last call's K + T (on ranks: its exchange with the others)
   double peakOperator = 0, peakSetup = 0, peakSolve = 0;   // the peak [MB] after each of them
   int lastReason = 0;
 };
@@ -668,6 +670,10 @@ struct Bulk {
   // built (petscBulkReserve): otherwise the first K + T copies J into a wider pattern.
   // Given, they may include K's entries; once K is built, exactly J's entries outside K, sorted.
   std::vector<std::pair<PetscInt, PetscInt>> reserved;
+  // On MPI ranks, once K is in the distributed matrix (petscRanksHoldOnce): J is gone and K x is
+  // that matrix's product, corrected where it is not K (releasedMult, "Distributed solves").
+  std::function<PetscErrorCode(const KN<double> &, KN<double> &)> releasedMult;
+  bool held() const { return J || releasedMult; }
 };
 std::vector<Bulk *> bulks;
 
@@ -965,6 +971,7 @@ PetscErrorCode vectorOf(KN<double> *v, PetscInt n, Vec *out) {
 
 // y = K x in every row (the Dirichlet rows are K's own): J x, corrected where J is not K.
 PetscErrorCode multiplyK(Bulk &b, KN<double> *x, KN<double> *y) {
+  if (!b.J) return b.releasedMult(*x, *y);
   Vec vx, vy;
   PetscCall(vectorOf(x, b.n, &vx));
   PetscCall(vectorOf(y, b.n, &vy));
@@ -983,7 +990,7 @@ PetscErrorCode multiplyK(Bulk &b, KN<double> *x, KN<double> *y) {
 
 long bulkMult(long const &id, KN<double> *const &x, KN<double> *const &y) {
   Bulk *b = bulkOf(id);
-  if (!b || !b->J) return fail(PETSC_ERR_ARG_WRONGSTATE, "K x");
+  if (!b || !b->held()) return fail(PETSC_ERR_ARG_WRONGSTATE, "K x");
   if (y->N() != b->n) y->resize(b->n);
   TRY(multiplyK(*b, x, y), "K x");
   return 0;
@@ -1516,19 +1523,40 @@ long contactCurrent(KN<long> *const &layout, string *const &texts) {
   return 1;
 }
 
-// values = the physical checks' integrals over Gamma_3 at x (contact_forms.hpp's kCheckForms).
+// The weight of each vertex in the checks' integrals below, interpolated at each point: on MPI ranks
+// the rank's partition of unity, so that the ranks' integrals sum to the whole Gamma_3's
+// (freefem/parallel_output.idp); none (every weight 1) on one rank.
+std::vector<double> contactShares;
+long contactWeights(KN<double> *const &w) {
+  contactShares.assign(w->N(), 0.0);
+  for (long i = 0; i < w->N(); ++i) contactShares[i] = (*w)[i];
+  return 0;
+}
+
+// values = the physical checks' integrals over Gamma_3 at x (contact_forms.hpp's kCheckForms),
+// each point weighted by contactShares where they are given.
 template <class M>
 long contactIntegrals(const M *const &th, KN<long> *const &layout, KN<double> *const &law, KN<double> *const &x,
                       KN<double> *const &values) {
   ContactSetup s;
-  if (!th || values->N() != contact_forms::kChecks || !contactSetup(layout, law, x->N(), &s)) {
+  const bool shared = !contactShares.empty();
+  if (!th || values->N() != contact_forms::kChecks || !contactSetup(layout, law, x->N(), &s) ||
+      (shared && (long)contactShares.size() != th->nv)) {
     if (th && values->N() != contact_forms::kChecks)
       lastMessage = "the contact integrals need a vector of " + std::to_string(contact_forms::kChecks);
+    else if (th && shared && (long)contactShares.size() != th->nv)
+      lastMessage = "the contact integrals' weights are not one a vertex of the mesh";
     return fail(PETSC_ERR_ARG_WRONG, "contact integrals");
   }
   const contact_forms::Form *checks = contact_forms::kCheckForms[s.dim - 2][s.friction];
+  const int dim = s.dim;
   *values = 0.;
-  bool ok = contactPoints(*th, s, *x, [&](const int *, const double *, double w, contact_forms::Point &pt) {
+  bool ok = contactPoints(*th, s, *x, [&](const int *vert, const double *lambda, double w, contact_forms::Point &pt) {
+    if (shared) {
+      double share = 0;
+      for (int j = 0; j < dim; ++j) share += lambda[j] * contactShares[vert[j]];
+      w *= share;
+    }
     for (int q = 0; q < contact_forms::kChecks; ++q) (*values)[q] += w * checks[q](s.law, pt);
   });
   if (!ok) return fail(PETSC_ERR_ARG_WRONG, "contact integrals");
@@ -1678,7 +1706,8 @@ long stats(long const &id, KN<double> *const &out) {
   if (!c) return fail(PETSC_ERR_ARG_OUTOFRANGE, "stats");
   double values[] = {(double)c->lastIts, c->lastResidual, (double)c->lastReason, c->lastSetup, c->lastSolve,
                      (double)c->totalIts, c->totalSetup, c->totalSolve, (double)c->setups, (double)c->solves,
-                     c->cpuOperator, c->cpuSetup, c->cpuSolve, c->peakOperator, c->peakSetup, c->peakSolve};
+                     c->cpuOperator, c->cpuSetup, c->cpuSolve, c->peakOperator, c->peakSetup, c->peakSolve,
+                     c->wallOperator};
   long count = sizeof(values) / sizeof(values[0]);
   if (out->N() < count) out->resize(count);
   for (long k = 0; k < count; ++k) (*out)[k] = values[k];
@@ -1749,6 +1778,15 @@ struct RanksPart {
   VecScatter toLocal = nullptr;      // PETSc's vector -> every local dof
   Vec spread = nullptr, seq = nullptr;   // a vector of PETSc's layout; the local dofs' one
   std::vector<PetscInt> sizes, blocks;   // each field's local dofs and components per node
+  // K held once (petscRanksHoldOnce): after the first operator the subdomain's K lives only in the
+  // distributed matrix. Kept aside are what that matrix does not hold as K: the rows K + T changes
+  // (refill: the contact rows, the script's mask) and the Dirichlet rows, whole, and the Dirichlet
+  // columns' entries of the other rows, each of this rank's rows with D != 0 (complete rows), in
+  // the local numbering.
+  bool holdOnce = false;
+  std::vector<char> refill;
+  std::vector<PetscInt> keptRows, keptPtr, keptCols, dRow, dCol;
+  std::vector<PetscScalar> keptVals, dVals;
 };
 std::vector<RanksPart *> parts;
 std::vector<long> partOfContext;   // contexts[id]'s part, -1: a one-rank context
@@ -1776,6 +1814,9 @@ long ranksAbort(long const &code) {
 // An error inside the Krylov solve or its preconditioner's set-up (a failed factorisation,
 // -ksp_error_if_not_converged, ...): the solve failed, not the options (freefem/petsc_ranks.idp).
 const long kKrylovError = -4;
+// A broken invariant of the plugin itself, not the user's options or the solve (exit INTERNAL).
+const long kInternalError = -5;
+bool internalFault = false;
 #define TRYKRYLOV(call, where) do { PetscErrorCode ierr_ = (call); if (ierr_) { failRanks(ierr_, where); return kKrylovError; } } while (0)
 
 RanksPart *partOf(long id) {
@@ -1912,12 +1953,20 @@ long ranksCreate(long const &part, string *const &options, string *const &names,
   return id;
 }
 
+template <class Index, class Offset>
+PetscErrorCode addWeightedRow(const RanksPart &p, Mat m, PetscInt i, Offset from, Offset to, const Index *ja,
+                              const PetscScalar *a);
+PetscErrorCode releaseK(RanksPart &p, Bulk &bulk, const Rows &k, Mat *out);
+PetscErrorCode refillOperator(const RanksPart &p, Matrice_Creuse<double> *T, MatriceMorse<double> *t, Mat op);
+
 // The distributed operator from this rank's K and T: K its subdomain's bulk matrix, held by the
 // plugin as on one rank (Bulk: 12 bytes an entry, FreeFEM's own matrix about 40) and never
 // changed on ranks, T its contact tangent; both are added here (FreeFEM's K + T took 22 of a 3D
 // n = 8 run's 32 s on 2 ranks). *out: the last operator, refilled in place (its pattern kept; T
-// may still add entries), or null: a new one, preallocated exactly from the owned rows.
-PetscErrorCode ranksOperator(const RanksPart &p, Bulk &bulk, Matrice_Creuse<double> *T, Mat *out) {
+// may still add entries), or null: a new one, preallocated exactly from the owned rows. With K
+// held once (p.holdOnce) the first operator takes K over (releaseK) and later ones refill only
+// the contact rows (refillOperator).
+PetscErrorCode ranksOperator(RanksPart &p, Bulk &bulk, Matrice_Creuse<double> *T, Mat *out) {
   MatriceMorse<double> *t = T->A ? dynamic_cast<MatriceMorse<double> *>(&*T->A) : nullptr;
   if (T->A && (!t || t->half || t->n != p.local || t->m != p.local)) {
     lastMessage = "the contact tangent is not a full sparse matrix of the subdomain's " + std::to_string(p.local) + " dofs";
@@ -1929,23 +1978,10 @@ PetscErrorCode ranksOperator(const RanksPart &p, Bulk &bulk, Matrice_Creuse<doub
     return PETSC_ERR_ARG_SIZ;
   }
   if (t) t->CSR();
+  if (!bulk.J) return refillOperator(p, T, t, *out);
   PetscCall(restoreK(bulk));
   Rows k;
   PetscCall(openRows(bulk.J, &k));
-  std::vector<PetscInt> cols;
-  std::vector<PetscScalar> vals;
-  // Row i of a CSR matrix (its columns from..to of ja, values of a) weighted by D_i, without the
-  // Dirichlet columns, added into m.
-  auto addRow = [&](Mat m, PetscInt i, auto from, auto to, auto ja, const double *a) -> PetscErrorCode {
-    cols.clear();
-    vals.clear();
-    for (auto q = from; q < to; ++q) {
-      if (p.dirichlet[ja[q]]) continue;
-      cols.push_back(p.index[ja[q]]);
-      vals.push_back(p.weight[i] * a[q]);
-    }
-    return MatSetValues(m, 1, &p.index[i], (PetscInt)cols.size(), cols.data(), vals.data(), ADD_VALUES);
-  };
   auto add = [&](Mat m) -> PetscErrorCode {
     for (PetscInt i = 0; i < p.local; ++i) {
       if (p.dirichlet[i]) {
@@ -1953,8 +1989,8 @@ PetscErrorCode ranksOperator(const RanksPart &p, Bulk &bulk, Matrice_Creuse<doub
         continue;
       }
       if (p.weight[i] == 0) continue;
-      PetscCall(addRow(m, i, k.ia[i], k.ia[i + 1], k.ja, k.a));
-      if (t) PetscCall(addRow(m, i, t->p[i], t->p[i + 1], t->j, t->aij));
+      PetscCall(addWeightedRow(p, m, i, k.ia[i], k.ia[i + 1], k.ja, k.a));
+      if (t) PetscCall(addWeightedRow(p, m, i, t->p[i], t->p[i + 1], t->j, t->aij));
     }
     PetscCall(MatAssemblyBegin(m, MAT_FINAL_ASSEMBLY));
     return MatAssemblyEnd(m, MAT_FINAL_ASSEMBLY);
@@ -1981,7 +2017,134 @@ PetscErrorCode ranksOperator(const RanksPart &p, Bulk &bulk, Matrice_Creuse<doub
     PetscCall(MatSetOption(*out, MAT_NEW_NONZERO_ALLOCATION_ERR, PETSC_FALSE));
   }
   PetscCall(add(*out));
+  if (p.holdOnce) return releaseK(p, bulk, k, out);
   return closeRows(&k);
+}
+
+// Row i of a CSR matrix of the subdomain (its local columns from..to of ja, values of a) weighted
+// by D_i, without the Dirichlet columns, added into m at its global row and columns.
+template <class Index, class Offset>
+PetscErrorCode addWeightedRow(const RanksPart &p, Mat m, PetscInt i, Offset from, Offset to, const Index *ja,
+                              const PetscScalar *a) {
+  thread_local std::vector<PetscInt> cols;   // scratch reused row after row (a row is ~80 entries, K has 700k rows at 3D 1/32)
+  thread_local std::vector<PetscScalar> vals;
+  cols.clear();
+  vals.clear();
+  for (Offset q = from; q < to; ++q) {
+    if (p.dirichlet[ja[q]]) continue;
+    cols.push_back(p.index[ja[q]]);
+    vals.push_back(p.weight[i] * a[q]);
+  }
+  return MatSetValues(m, 1, &p.index[i], (PetscInt)cols.size(), cols.data(), vals.data(), ADD_VALUES);
+}
+
+// The first operator holds K now: what it does not hold as K is kept aside (RanksPart), the
+// subdomain's own K is freed, and K x becomes the distributed matrix's product, corrected there.
+PetscErrorCode releaseK(RanksPart &p, Bulk &bulk, const Rows &k, Mat *out) {
+  p.keptRows.clear(); p.keptPtr.assign(1, 0); p.keptCols.clear(); p.keptVals.clear();
+  p.dRow.clear(); p.dCol.clear(); p.dVals.clear();
+  for (PetscInt i = 0; i < p.local; ++i) {
+    if (p.weight[i] == 0) continue;
+    if (p.dirichlet[i] || p.refill[i]) {
+      p.keptRows.push_back(i);
+      for (PetscInt q = k.ia[i]; q < k.ia[i + 1]; ++q) { p.keptCols.push_back(k.ja[q]); p.keptVals.push_back(k.a[q]); }
+      p.keptPtr.push_back((PetscInt)p.keptCols.size());
+      continue;
+    }
+    for (PetscInt q = k.ia[i]; q < k.ia[i + 1]; ++q)
+      if (p.dirichlet[k.ja[q]]) { p.dRow.push_back(i); p.dCol.push_back(k.ja[q]); p.dVals.push_back(k.a[q]); }
+  }
+  Rows open = k;
+  PetscCall(closeRows(&open));
+  PetscCall(MatDestroy(&bulk.J));
+  // y = K x on every row with D != 0 (the others are never read: the residual and the checks
+  // weigh each row by D): the operator's product brought back to the local dofs, each kept row
+  // computed whole, the Dirichlet columns added.
+  bulk.releasedMult = [&p, out](const KN<double> &x, KN<double> &y) -> PetscErrorCode {
+    if (!*out) {
+      lastMessage = "K x after the distributed matrix that held K was destroyed";
+      return PETSC_ERR_ARG_WRONGSTATE;
+    }
+    Vec vx, vy;
+    PetscCall(VecDuplicate(p.spread, &vx));
+    PetscCall(VecDuplicate(p.spread, &vy));
+    PetscScalar *in;
+    PetscCall(VecGetArray(vx, &in));
+    for (PetscInt i = 0; i < p.local; ++i)
+      if (p.own[i]) in[p.index[i] - p.first] = x[i];
+    PetscCall(VecRestoreArray(vx, &in));
+    PetscCall(MatMult(*out, vx, vy));
+    PetscCall(VecScatterBegin(p.toLocal, vy, p.seq, INSERT_VALUES, SCATTER_FORWARD));
+    PetscCall(VecScatterEnd(p.toLocal, vy, p.seq, INSERT_VALUES, SCATTER_FORWARD));
+    const PetscScalar *back;
+    PetscCall(VecGetArrayRead(p.seq, &back));
+    for (PetscInt i = 0; i < p.local; ++i) y[i] = back[i];
+    PetscCall(VecRestoreArrayRead(p.seq, &back));
+    PetscCall(VecDestroy(&vx));
+    PetscCall(VecDestroy(&vy));
+    for (size_t r = 0; r < p.keptRows.size(); ++r) {
+      double sum = 0;
+      for (PetscInt q = p.keptPtr[r]; q < p.keptPtr[r + 1]; ++q) sum += p.keptVals[q] * x[p.keptCols[q]];
+      y[p.keptRows[r]] = sum;
+    }
+    for (size_t d = 0; d < p.dRow.size(); ++d) y[p.dRow[d]] += p.dVals[d] * x[p.dCol[d]];
+    return 0;
+  };
+  if (mpiRank() == 0)
+    std::cout << "ranks: K held once, in the distributed matrix (kept aside on rank 0: " << p.keptCols.size()
+              << " entries of " << p.keptRows.size() << " whole rows, " << p.dRow.size() << " in Dirichlet columns)"
+              << std::endl;
+  return 0;
+}
+
+// K + T again once K is released: the contact rows' values zeroed in place (pattern kept) and
+// added again from the kept rows of K and the new T; every other row is K's, as the first operator left it.
+PetscErrorCode refillOperator(const RanksPart &p, Matrice_Creuse<double> *T, MatriceMorse<double> *t, Mat op) {
+  if (!op) {
+    lastMessage = "the contact rows of an operator that does not exist";
+    return PETSC_ERR_ARG_WRONGSTATE;
+  }
+  std::vector<PetscInt> zero;
+  for (PetscInt i = 0; i < p.local; ++i)
+    if (p.own[i] && p.refill[i]) zero.push_back(p.index[i]);
+  PetscCall(MatSetOption(op, MAT_KEEP_NONZERO_PATTERN, PETSC_TRUE));
+  PetscCall(MatZeroRows(op, (PetscInt)zero.size(), zero.data(), 0.0, nullptr, nullptr));
+  for (size_t r = 0; r < p.keptRows.size(); ++r) {
+    PetscInt i = p.keptRows[r];
+    if (!p.refill[i]) continue;
+    PetscCall(addWeightedRow(p, op, i, p.keptPtr[r], p.keptPtr[r + 1], p.keptCols.data(), p.keptVals.data()));
+    if (t) PetscCall(addWeightedRow(p, op, i, t->p[i], t->p[i + 1], t->j, t->aij));
+  }
+  // A value of T outside the contact rows would have gone nowhere: refused, not solved wrong.
+  // (FreeFEM's boundary varfs store zeros in the rows of a contact element's other vertices.)
+  if (t)
+    for (PetscInt i = 0; i < p.local; ++i) {
+      if (p.weight[i] == 0 || p.refill[i] || p.dirichlet[i]) continue;
+      for (auto q = t->p[i]; q < t->p[i + 1]; ++q)
+        if (t->aij[q] != 0) {
+          lastMessage = "the contact tangent has a value outside the contact rows kept aside (an internal error)";
+          internalFault = true;
+          return PETSC_ERR_ARG_WRONG;
+        }
+    }
+  PetscCall(MatAssemblyBegin(op, MAT_FINAL_ASSEMBLY));
+  return MatAssemblyEnd(op, MAT_FINAL_ASSEMBLY);
+}
+
+// K held once by the decomposition `part` from its first operator on (ranksOperator): mask (the
+// Newton vector's size) marks the contact rows, the rows K + T changes at every Newton step.
+long ranksHoldOnce(long const &part, KN<double> *const &mask) {
+  RanksPart *p = part >= 0 && part < (long)parts.size() ? parts[part] : nullptr;
+  if (!p) return failRanks(PETSC_ERR_ARG_OUTOFRANGE, "K held once");
+  if (mask->N() != p->local) {
+    lastMessage = "the contact rows' mask has " + std::to_string(mask->N()) + " entries where the subdomain has " +
+                  std::to_string(p->local) + " dofs";
+    return failRanks(PETSC_ERR_ARG_SIZ, "K held once");
+  }
+  p->refill.assign(p->local, 0);
+  for (PetscInt i = 0; i < p->local; ++i) p->refill[i] = (*mask)[i] != 0 && !p->dirichlet[i];
+  p->holdOnce = true;
+  return 0;
 }
 
 // The distributed interpolation of the Newton vector from multigrid level k + 1 onto level k
@@ -2057,21 +2220,29 @@ long ranksSolve(long const &id, long const &bulk, Matrice_Creuse<double> *const 
   Context *c = context(id);
   RanksPart *p = partOf(id);
   Bulk *k = bulkOf(bulk);
-  if (!c || !p || !k || !k->J) return failRanks(PETSC_ERR_ARG_OUTOFRANGE, "solve");
+  if (!c || !p || !k || !k->held()) return failRanks(PETSC_ERR_ARG_OUTOFRANGE, "solve");
   if (b->N() != p->local || x->N() != p->local) {
     lastMessage = "vectors of " + std::to_string(b->N()) + " and " + std::to_string(x->N()) + " entries where the subdomain has " +
                   std::to_string(p->local) + " dofs";
     return failRanks(PETSC_ERR_ARG_SIZ, "solve");
   }
-  double c0 = cpu();
+  double c0 = cpu(), w0 = now();
   // One distributed matrix, the operator and the preconditioner's, refilled in place: a second
   // would cost a copy of K on every rank. A reused multigrid keeps its Galerkin coarse operators
   // (PCMG's set-up is skipped); the inner solvers built on this matrix itself (the finest
   // smoother's block-Jacobi ILU, a one-level multigrid's LU) see it change and set up again at
   // their next solve (3D n = 8 on 2 ranks: 1 Krylov iteration a step where the stale LU of a
   // second matrix took 10-13).
-  if (reuse < 2 || !c->op) TRYRANKS(ranksOperator(*p, *k, T, &c->op), "matrix K + T");
+  if (reuse < 2 || !c->op) {
+    internalFault = false;
+    PetscErrorCode ierr = ranksOperator(*p, *k, T, &c->op);
+    if (ierr) {
+      long code = failRanks(ierr, "matrix K + T");
+      return internalFault ? kInternalError : code;
+    }
+  }
   c->cpuOperator = cpu() - c0;
+  c->wallOperator = now() - w0;
   c->peakOperator = peakMb();
   bool rebuild = !reuse || !c->pre;
   std::string step;
@@ -2164,6 +2335,7 @@ static void init() {
              new OneOperator5_<long, pmesh, KN<long> *, KN<double> *, KN<double> *, Matrice_Creuse<double> *>(
                  contactTangent<Mesh>));
   Global.Add("petscContactCurrent", "(", new OneOperator2_<long, KN<long> *, string *>(contactCurrent));
+  Global.Add("petscContactWeights", "(", new OneOperator1_<long, KN<double> *>(contactWeights));
   Global.Add("petscContactIntegrals", "(",
              new OneOperator5_<long, pmesh, KN<long> *, KN<double> *, KN<double> *, KN<double> *>(contactIntegrals<Mesh>));
   Global.Add("petscContactIntegrals", "(",
@@ -2179,6 +2351,7 @@ static void init() {
   Global.Add("petscRanksCreate", "(",
              new OneOperator6_<long, long, string *, string *, KN<long> *, KN<long> *, KN<double> *>(ranksCreate));
   Global.Add("petscRanksAbort", "(", new OneOperator1_<long, long>(ranksAbort));
+  Global.Add("petscRanksHoldOnce", "(", new OneOperator2_<long, long, KN<double> *>(ranksHoldOnce));
   Global.Add("petscRanksSolve", "(",
              new OneOperator7_<long, long, long, Matrice_Creuse<double> *, KN<double> *, KN<double> *, double,
                                 long>(ranksSolve));

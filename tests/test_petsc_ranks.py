@@ -64,10 +64,29 @@ def assert_one_rank_solution(root: Path, case: str, n: int, ranks: tuple[int, ..
             assert np.abs(a - b).max() <= AGREE * scale, (case, count, name, np.abs(a - b).max() / scale)
         # The ranks wrote the outputs themselves: no sequential pass ran after them.
         assert many.record.post_pass_peak_rss_mb is None and not (many.directory / "ranks_record.txt").exists()
+        assert_lean_ranks(many.directory, count)
         assert_one_rank_outputs(one.directory, many.directory)
         scene = load_scene(CASES / f"{case}.toml")
         verdicts = [judge(run.record, scene) for run in (one, many)]
         assert verdicts[0].failed == verdicts[1].failed and verdicts[0].missing == verdicts[1].missing
+
+
+def assert_lean_ranks(directory: Path, ranks: int) -> None:
+    """Each rank's subdomain K was taken over by the distributed matrix (held once), the contact terms
+    came from the plugin's kernel (no note that the varfs assembled them; the ranks' checks' integrals
+    are then the kernel's, weighted by the partition of unity, which assert_one_rank_outputs compares
+    with one rank's), and run.json has every profile piece's wall time on every rank."""
+    stdout = (directory / "stdout.txt").read_text()
+    assert "ranks: K held once, in the distributed matrix" in stdout
+    assert "note: the contact kernel" not in stdout
+    run = json.loads((directory / "run.json").read_text())
+    walls = run["parallel"]["profile_wall_s"]
+    assert list(walls) == list(run["profile"])
+    assert all(len(w) == ranks and min(w) >= 0 for w in walls.values())
+    # The pieces are consecutive (each starts where the last ended): on every rank they add up to the
+    # run's wall from the first piece on, which is within the whole run's.
+    totals = np.sum([w for w in walls.values()], axis=0)
+    assert np.all(totals <= run["parallel"]["wall"]["total_s"] + 0.5)
 
 
 # run.json's quantities the harness reads after a run, each against the scale its physical check judges it
