@@ -22,10 +22,14 @@ from typing import Any
 
 from harness.core.contract import Failure
 from harness.core.errors import EnvironmentFault, RunError
+from harness.core.rank_watch import DeadRank, dead_rank
 from harness.core.signals import CHILDREN, Interrupted
 
 BINARY = "FreeFem++"
 PLUGIN_PATH = "/usr/lib/freefem++"  # Debian's binary looks elsewhere for its plugins
+# A rank found dead (a zombie its launcher has not reaped) this long is taken as a launcher
+# that will not end the others: Open MPI's own abort takes 1-2 s here.
+RANK_POLL_S, RANK_GRACE_S = 1.0, 5.0
 INFINITY = "1e300"  # FreeFEM's atof has no "inf"; 1e300 acts as unbounded for every knob
 
 # FreeFEM's exit code -> what it means (harness/core/contract.py, the one table).
@@ -158,22 +162,41 @@ def wait_measured(proc: subprocess.Popen, timeout_s: float) -> tuple[int | None,
     which, unlike RUSAGE_CHILDREN, is this child's alone (Linux reports it in KiB).
 
     A blocking wait4 returns the moment FreeFEM exits (polling added up to 10 ms per run);
-    a timer kills the process group at the deadline."""
-    timed_out = threading.Event()
+    a timer kills the process group at the deadline, and a watcher kills it when a rank has
+    died and the launcher has not ended the others within RANK_GRACE_S (rank_watch.py): the
+    run then ends with that rank's code, as a launcher would report it."""
+    timed_out, done = threading.Event(), threading.Event()
+    dead: list[DeadRank] = []
 
     def kill() -> None:
         timed_out.set()
         with contextlib.suppress(ProcessLookupError):
             os.killpg(proc.pid, signal.SIGKILL)
 
+    def watch() -> None:
+        seen: dict[int, int] = {}
+        while not done.wait(RANK_POLL_S):
+            rank = dead_rank(proc.pid)
+            seen = {rank.pid: seen.get(rank.pid, 0) + 1} if rank else {}
+            if rank and seen[rank.pid] * RANK_POLL_S >= RANK_GRACE_S:
+                dead.append(rank)
+                with contextlib.suppress(ProcessLookupError):
+                    os.killpg(proc.pid, signal.SIGKILL)
+                return
+
     timer = threading.Timer(timeout_s, kill)
     timer.daemon = True
     timer.start()
+    watcher = threading.Thread(target=watch, daemon=True)
+    watcher.start()
     try:
         _, status, usage = os.wait4(proc.pid, 0)
     finally:
         timer.cancel()
+        done.set()
     proc.returncode = os.waitstatus_to_exitcode(status)
+    if dead and not timed_out.is_set():
+        return dead[0].returncode, float("nan")
     if timed_out.is_set():
         return None, float("nan")
     return proc.returncode, usage.ru_maxrss / 1024.0
