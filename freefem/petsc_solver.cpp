@@ -1814,9 +1814,9 @@ long ranksAbort(long const &code) {
 // An error inside the Krylov solve or its preconditioner's set-up (a failed factorisation,
 // -ksp_error_if_not_converged, ...): the solve failed, not the options (freefem/petsc_ranks.idp).
 const long kKrylovError = -4;
-// A broken invariant of the plugin itself, not the user's options or the solve (exit INTERNAL).
+// A broken invariant of the plugin itself (PETSC_ERR_PLIB from our own code), not the user's options
+// or the solve (exit INTERNAL).
 const long kInternalError = -5;
-bool internalFault = false;
 #define TRYKRYLOV(call, where) do { PetscErrorCode ierr_ = (call); if (ierr_) { failRanks(ierr_, where); return kKrylovError; } } while (0)
 
 RanksPart *partOf(long id) {
@@ -2123,8 +2123,7 @@ PetscErrorCode refillOperator(const RanksPart &p, Matrice_Creuse<double> *T, Mat
       for (auto q = t->p[i]; q < t->p[i + 1]; ++q)
         if (t->aij[q] != 0) {
           lastMessage = "the contact tangent has a value outside the contact rows kept aside (an internal error)";
-          internalFault = true;
-          return PETSC_ERR_ARG_WRONG;
+          return PETSC_ERR_PLIB;
         }
     }
   PetscCall(MatAssemblyBegin(op, MAT_FINAL_ASSEMBLY));
@@ -2234,11 +2233,10 @@ long ranksSolve(long const &id, long const &bulk, Matrice_Creuse<double> *const 
   // their next solve (3D n = 8 on 2 ranks: 1 Krylov iteration a step where the stale LU of a
   // second matrix took 10-13).
   if (reuse < 2 || !c->op) {
-    internalFault = false;
     PetscErrorCode ierr = ranksOperator(*p, *k, T, &c->op);
     if (ierr) {
       long code = failRanks(ierr, "matrix K + T");
-      return internalFault ? kInternalError : code;
+      return ierr == PETSC_ERR_PLIB ? kInternalError : code;
     }
   }
   c->cpuOperator = cpu() - c0;
