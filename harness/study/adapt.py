@@ -37,7 +37,7 @@ from harness.study.engine import InlineMeshes, Progress, run_levels, runs_of
 from harness.core.contract import BODY_LABEL
 from harness.core.errors import EnvironmentFault, FieldsError, SceneError
 from harness.measure.fields import Fields, read_fields
-from harness.mesh.msh import mark_coarser, mark_small_cells, write_msh
+from harness.mesh.msh import mark_coarser, mark_small_cells, read_msh, write_msh
 from harness.mesh.simplex import SimplexMesh, quality, signed_measures
 from harness.scene.gmsh_geometry import SMALL_CELL
 from harness.core.layout import Layout
@@ -114,21 +114,12 @@ def check_adaptable(scene: Scene) -> None:
 def read_start(path: Path, dimension: int) -> SimplexMesh:
     """The first step's mesh: the case's coarsest level as the harness wrote it (MSH 2.2,
     role labels and the cells' region labels in gmsh:physical)."""
-    import meshio  # here: its import is the slow part of start-up
-
-    cell_type, facet_type = CELL_TYPES[dimension]
-    mesh = meshio.read(path)
-    cells = np.vstack([b.data for b in mesh.cells if b.type == cell_type])
-    facets, labels, regions = [], [], []
-    for block, physical in zip(mesh.cells, mesh.cell_data["gmsh:physical"]):
-        if block.type == facet_type:
-            facets.append(block.data)
-            labels.append(physical)
-        elif block.type == cell_type:
-            regions.append(physical)
+    level = read_msh(path)
+    if level.dimension != dimension:
+        raise SceneError(f"{path}: a {level.dimension}D mesh where the scene is {dimension}D")
     # The steps' cells keep their material (a multi-region scene's regions, harness/scene/regions.py).
-    tags = np.concatenate(regions).astype(np.int64)
-    return REFINERS[dimension].start(mesh.points[:, :dimension], cells, np.vstack(facets), np.concatenate(labels),
+    tags = level.cell_labels()
+    return REFINERS[dimension].start(level.points, level.cells, level.facets, level.labels,
                                      None if (tags == BODY_LABEL).all() else tags)
 
 
