@@ -2192,6 +2192,18 @@ long ranksHoldOnce(long const &part, KN<double> *const &mask) {
 // nonzero caused a malloc", 2D n = 16 on 4 ranks); below, every rank has the whole nodal
 // interpolation between two coarse meshes and sets the rows of PETSc's even split, the layout
 // of the coarse levels (their natural numbering).
+// The range [lo, hi) of this rank's rows of a distributed size, as PETSc lays it out (local: its
+// own count, or PETSC_DECIDE).
+PetscErrorCode layoutRange(PetscInt local, PetscInt size, PetscInt *lo, PetscInt *hi) {
+  PetscLayout layout;
+  PetscCall(PetscLayoutCreate(PETSC_COMM_WORLD, &layout));
+  PetscCall(PetscLayoutSetLocalSize(layout, local));
+  PetscCall(PetscLayoutSetSize(layout, size));
+  PetscCall(PetscLayoutSetUp(layout));
+  PetscCall(PetscLayoutGetRange(layout, lo, hi));
+  return PetscLayoutDestroy(&layout);
+}
+
 PetscErrorCode ranksInterpolation(const RanksPart &p, Mat nodal, size_t level, Mat *out) {
   PetscInt rows, cols;
   PetscCall(MatGetSize(nodal, &rows, &cols));
@@ -2207,20 +2219,30 @@ PetscErrorCode ranksInterpolation(const RanksPart &p, Mat nodal, size_t level, M
     fineSize = p.size;
     localRows = p.owned;
   }
+  // Preallocated exactly, from a first pass over the rows (4 + 4 entries a row, as before, left
+  // three quarters of the finest interpolation's memory unused: 38 of 3D h = 1/32's MB a rank).
+  PetscInt lo, hi, clo, chi;
+  PetscCall(layoutRange(localRows, fineSize, &lo, &hi));
+  PetscCall(layoutRange(PETSC_DECIDE, coarseSize, &clo, &chi));
+  std::vector<PetscInt> inside(hi - lo, 0), outside(hi - lo, 0);
+  auto mine = [&](PetscInt dof) { return level == 0 ? p.own[dof] != 0 : (dof >= lo && dof < hi); };
+  auto rowOf = [&](PetscInt dof) { return level == 0 ? p.index[dof] : dof; };
+  PetscCall(forEachFieldRow(nodal, p.blocks, [&](PetscInt dof, const std::vector<PetscInt> &cj,
+                                                 const std::vector<PetscScalar> &) -> PetscErrorCode {
+    if (!mine(dof)) return 0;
+    for (PetscInt j : cj) ++(j >= clo && j < chi ? inside : outside)[rowOf(dof) - lo];
+    return 0;
+  }));
   PetscCall(MatCreate(PETSC_COMM_WORLD, out));
   PetscCall(MatSetType(*out, MATAIJ));
   PetscCall(MatSetSizes(*out, localRows, PETSC_DECIDE, fineSize, coarseSize));
-  PetscCall(MatSeqAIJSetPreallocation(*out, 4, nullptr));
-  PetscCall(MatMPIAIJSetPreallocation(*out, 4, nullptr, 4, nullptr));
-  PetscCall(MatSetOption(*out, MAT_NEW_NONZERO_ALLOCATION_ERR, PETSC_FALSE));
-  PetscInt lo, hi;
-  PetscCall(MatGetOwnershipRange(*out, &lo, &hi));
+  PetscCall(MatSeqAIJSetPreallocation(*out, 0, inside.data()));
+  PetscCall(MatMPIAIJSetPreallocation(*out, 0, inside.data(), 0, outside.data()));
   std::vector<PetscScalar> zeros;
   PetscCall(forEachFieldRow(nodal, p.blocks, [&](PetscInt dof, const std::vector<PetscInt> &cj,
                                                  const std::vector<PetscScalar> &cv) -> PetscErrorCode {
-    bool mine = level == 0 ? p.own[dof] != 0 : (dof >= lo && dof < hi);
-    if (!mine || cj.empty()) return 0;
-    PetscInt row = level == 0 ? p.index[dof] : dof;
+    if (!mine(dof) || cj.empty()) return 0;
+    PetscInt row = rowOf(dof);
     const PetscScalar *values = cv.data();
     if (level == 0 && p.dirichlet[dof]) { zeros.assign(cv.size(), 0.0); values = zeros.data(); }
     return MatSetValues(*out, 1, &row, (PetscInt)cj.size(), cj.data(), values, INSERT_VALUES);
