@@ -82,6 +82,22 @@ def test_a_distributed_plan_carries_its_sequential_pass(tmp_path):
     assert sequential.post is None
 
 
+def test_petsc_on_ranks_cuts_the_mesh_and_keys_how(tmp_path):
+    """PETSc across the ranks reads the parts the harness cuts (harness/mesh/cut.py) into the run's
+    directory; the cut's code is in the key (another cut, another run), its place is not."""
+    layout = Layout(results=tmp_path)
+    scene = load_scene(CASES / "paper.toml", ["run.ranks=2", 'run.linear_solver="petsc"', 'scene.initial_guess="zero"'])
+    mesh = level_mesh(scene, 8, layout)
+    plan = make_plan(scene, mesh, 8, layout, None)
+    assert plan.main.cut == (mesh.resolve(), 2) and "mesh_cut" in plan.inputs["scene"]
+    options = plan.main.bound(tmp_path / "work")
+    assert options[options.index("-parallel.parts") + 1] == str((tmp_path / "work" / "parts").resolve())
+    assert "-parallel.parts" not in plan.main.keyed_options
+    schwarz = make_plan(load_scene(CASES / "paper.toml", ["run.ranks=2", 'run.coarse_space="none"',
+                                                         'scene.initial_guess="zero"']), mesh, 8, layout, None)
+    assert schwarz.main.cut is None and "-parallel.parts" not in schwarz.main.options and "mesh_cut" not in schwarz.inputs["scene"]
+
+
 def test_the_executor_runs_the_plan_it_was_given(tmp_path):
     """The key a run is kept under is the plan's, made before it ran; the run is reused under it."""
     layout = Layout(results=tmp_path)

@@ -16,6 +16,7 @@ from typing import Any, Mapping
 from harness.core import freefem
 from harness.core.errors import SceneError
 from harness.core.layout import Layout
+from harness.mesh import cut as mesh_cut
 from harness.mesh.mesh import coarser_meshes, family_levels
 from harness.mesh.msh import marked_coarser, small_cells_marker
 from harness.run import launcher, petsc_plugin
@@ -125,6 +126,8 @@ def make_plan(scene: Scene, mesh: Path, n: int, layout: Layout, warm: WarmStart 
     described = {**scene.run_inputs(), "start": guess}
     if ranks.parallel:  # a run on other ranks is another measurement (same solution to round-off)
         described["ranks"] = ranks.count
+    if main.cut:  # how the ranks' parts are cut is an input of their run (harness/mesh/cut.py)
+        described["mesh_cut"] = sha256_file(Path(mesh_cut.__file__))
     coarser = marked_coarser(mesh) if scene.multigrid_levels else None
     if coarser:  # the key holds no -mg.mesh file: the levels a step was solved with are its input
         described["multigrid_meshes"] = [sha256_file(c) for c in coarser]
