@@ -40,11 +40,15 @@ TOLERANCES: dict[str, tuple[float, str]] = {
                         "largest nodal flux on Gamma_3 (floors: FLOOR, and floor of the flux reading); "
                         "measured <= 2.3e-12"),
     "heat": (1e-8, "heat in through Gamma_3 + sources = heat out through the Dirichlet boundary is "
-                   "exact for a converged residual (the constant is a test function); relative to "
-                   "the largest of the three (floors: FLOOR, and floor of the heat reading), with "
-                   "the force balance's "
-                   "margin; measured <= 5.6e-14"),
-    "charge": (1e-8, "charge balance, as the heat balance; measured <= 1.4e-11"),
+                   "exact up to Newton's final residual (the constant is a test function); relative to "
+                   "the largest of the three (floors: FLOOR, and floor of the heat reading), "
+                   "at most this or the force check's factor times the Cauchy-Schwarz bound of the "
+                   "residual's sum, sqrt(N_theta) ||R_theta|| S_theta (heat_residual_bound), the "
+                   "larger; measured <= 5.6e-14"),
+    "charge": (1e-8, "charge balance, as the heat balance (charge_residual_bound); measured <= 1.4e-11, "
+                     "and 2.9e-7 within a bound of 6.6e-6 where nothing carries charge out (the paper's "
+                     "scene with both ends free, n = 16: 2.9e-12 C/m in through Gamma_3, Newton's "
+                     "residual, against a floor of 1e-5 C/m)"),
     "floating": (1e-8, "a floating electrode's free charge read from the residual (the sum of its nodes' "
                        "reactions, as electrode_charge) equals the given loads.floating_charge: the "
                        "eliminated unknown's equation is that sum, so it holds up to Newton's final "
@@ -160,6 +164,12 @@ def floors(c: dict[str, Any], length: float) -> dict[str, float]:
     return out
 
 
+def balance_allowance(name: str, out: dict[str, Any]) -> float:
+    """What the heat or charge balance may miss by: its tolerance, or Newton's final residual's
+    bound times the force check's factor where that is larger (both relative to the flow)."""
+    return max(TOLERANCES[name][0], TOLERANCES["force"][0] * out[f"{name}_residual_bound"])
+
+
 def physical_checks(record: RunRecord, scene: Scene) -> dict[str, Any]:
     """The checks of issue 4 on a converged run: values, the scale each is relative to, and
     a pass flag per check (TOLERANCES). Every quantity is FreeFEM's (freefem/checks.idp);
@@ -203,6 +213,8 @@ def physical_checks(record: RunRecord, scene: Scene) -> dict[str, Any]:
         # FreeFEM's {name}_imbalance, with a floor for a contact that carries nothing.
         scale = max(abs(into), abs(source), abs(leaving), electrode[name], floor[name])
         out[f"{name}_imbalance"] = abs(into + source - leaving) / scale
+        # Newton's final residual's bound on the same scale (checks.idp: sqrt(N) ||R|| S; absent: 0).
+        out[f"{name}_residual_bound"] = c.get(f"{name}_residual_bound", 0.0) / scale
         # Nothing drives this flow (no conductance drive, no source: `block`'s phi_f = theta_f = 0,
         # `heated`'s charge, `heat` without a contact part): the exact flow is zero and every term
         # round-off of the bulk flux, whose size run.json does not give; the balance then has
@@ -223,8 +235,8 @@ def physical_checks(record: RunRecord, scene: Scene) -> dict[str, Any]:
         "sigma_nu_ok": out["max_sigma_nu"] <= tol["sigma_nu"] * sigma_scale,
         "sigma_tau_ok": out["sigma_tau_excess"] <= tol["sigma_tau"],
         "open_flux_ok": bool(open_ok),
-        "heat_ok": out["heat_imbalance"] <= tol["heat"] or not out["heat_driven"],
-        "charge_ok": out["charge_imbalance"] <= tol["charge"] or not out["charge_driven"],
+        "heat_ok": out["heat_imbalance"] <= balance_allowance("heat", out) or not out["heat_driven"],
+        "charge_ok": out["charge_imbalance"] <= balance_allowance("charge", out) or not out["charge_driven"],
     })
     if "floating_charge" in c:
         # The worst electrode's: |charge read - given| relative to the larger of |given| and its floor.

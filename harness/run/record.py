@@ -23,7 +23,7 @@ from harness.core.errors import FieldsError
 CHECK_KEYS = frozenset({
     "applied_load", "clamp_reaction", "contact_force_on_body", "force_imbalance", "force_residual_bound",
     "max_sigma_nu", "min_sigma_nu", "max_abs_sigma_tau", "S", "open_nodes", "natural_heat_flux",
-    "natural_charge_flux", "heat_source",
+    "natural_charge_flux", "heat_source", "heat_residual_bound", "charge_residual_bound",
     "heat_out_dirichlet", "heat_imbalance", "max_heat_flux_contact", "max_heat_flux_open",
     "max_heat_flux_open_expected", "charge_source", "charge_out_dirichlet", "charge_imbalance", "electrode_charge",
     "max_charge_flux_contact", "max_charge_flux_open", "max_charge_flux_open_expected",
