@@ -103,10 +103,11 @@ CHECK_SCALES = {
     "max_charge_flux_contact": "charge_flux_reading", "max_charge_flux_open": "charge_flux_reading",
     "max_charge_flux_open_expected": "charge_flux_reading",
 }
-# Relative already, and round-off or Newton's last residual (force_residual_bound, sqrt(N_u) ||R_u||), which
+# Relative already, and round-off or Newton's last residual (the residual bounds, sqrt(N) ||R|| S), which
 # differ with the Newton path, not with where the outputs are made (the residual history differs as much):
 # the checks judge them the same way on both sides (judge, below).
-NEWTON_CHECKS = ("force_imbalance", "force_residual_bound", "heat_imbalance", "charge_imbalance")
+NEWTON_CHECKS = ("force_imbalance", "force_residual_bound", "heat_imbalance", "charge_imbalance",
+                 "heat_residual_bound", "charge_residual_bound")
 # The contact integrals, in a reading's units (checks.idp).
 TOP_SCALES = {"contact_force": "force_reading", "friction_force": "force_reading", "friction_total": "force_reading",
               "friction_open": "force_reading", "heat_in_contact": "heat_contact_reading",
