@@ -71,15 +71,15 @@ def test_a_short_wait_says_nothing(tmp_path):
 
 
 def test_a_chain_says_its_levels_newton_steps_before_their_done_line(tmp_path, monkeypatch):
-    """On the real solver: each level's steps as FreeFEM printed them (3D n = 2, 4 of the
-    paper's block take 5 steps each), then its done line."""
+    """On the real solver: each level's steps as FreeFEM printed them (3D n = 2 and 8 of the
+    paper's block), then its done line."""
     monkeypatch.setattr(engine, "watching", functools.partial(watching, pace=EAGER))
     scene = load_scene(CASES / "paper3d.toml", ['scene.name="progress"'])
     layout = Layout(results=tmp_path)
     said: list[str] = []
-    outcomes = run_levels(scene, InlineMeshes(scene, (2, 4), layout), layout, progress=said.append)
+    outcomes = run_levels(scene, InlineMeshes(scene, (2, 8), layout), layout, progress=said.append)
     assert all(o.ok for o in outcomes.values())
-    for count, n in enumerate((2, 4), start=1):
+    for count, n in enumerate((2, 8), start=1):
         label = f"[{count}/2] n={n}"
         mine = [line for line in said if line.startswith(label)]
         its = outcomes[n].record.newton_iterations
@@ -87,7 +87,8 @@ def test_a_chain_says_its_levels_newton_steps_before_their_done_line(tmp_path, m
         assert [s.split(": newton ")[1].split(" ")[0] for s in steps] == [str(k) for k in range(1, its + 1)], mine
         assert mine[-1].startswith(f"{label} done in ")
     # Said as each step ended, not all at once when FreeFEM exits: newton.idp flushes each step's
-    # line, which FreeFEM's endl leaves in the buffer. n = 4's five steps take ~0.1 s of CPU each.
+    # line, which FreeFEM's endl leaves in the buffer. n = 8's steps take ~0.3 s of CPU each (n = 4's
+    # ~0.05 s on an idle machine: all five printed the same tenth of a second there).
     cpu = [line.split("FreeFEM CPU ")[1].split(" s,")[0] for line in said
-           if line.startswith("[2/2] n=4") and ": newton " in line]
+           if line.startswith("[2/2] n=8") and ": newton " in line]
     assert len(set(cpu)) > 1, cpu
