@@ -12,7 +12,7 @@ import numpy as np
 import pytest
 
 from harness.core.layout import REPO
-from harness.mesh.cut import ARTIFICIAL_LABEL, STAMP, bisection, cut, cut_files, facet_keys, part_files
+from harness.mesh.cut import ARTIFICIAL_LABEL, bisection, cut, cut_files, facet_keys, part_files
 from harness.mesh.mesh import build_mesh
 from harness.mesh.msh import AS_MESHIO, msh_text, read_msh
 from harness.mesh.simplex import boundary_facets
@@ -87,11 +87,15 @@ def test_the_parts_are_a_decomposition(level, count):
     assert (held >= 1).all()
 
 
-def test_parts_are_made_again_only_for_another_mesh_or_rank_count(level, tmp_path):
-    target = tmp_path / "parts"
-    cut_files(level, 2, target)
-    first = part_files(target, 0)[1].stat().st_mtime_ns
-    cut_files(level, 2, target)
-    assert part_files(target, 0)[1].stat().st_mtime_ns == first
-    cut_files(level, 3, target)
-    assert part_files(target, 2)[0].is_file() and (target / STAMP).read_text().endswith(" 3\n")
+def test_the_part_files_hold_the_cut(level, tmp_path):
+    """One mesh file and one array file per rank; each mesh file reads back as its part."""
+    target = cut_files(level, 3, tmp_path / "parts")
+    parts = cut(read_msh(level), 3)
+    for r, p in enumerate(parts):
+        msh, txt = part_files(target, r)
+        back = read_msh(msh)
+        assert np.array_equal(back.points, p.mesh.points) and np.array_equal(back.cells, p.mesh.cells)
+        assert np.array_equal(back.labels, p.mesh.labels)
+        header = txt.read_text().splitlines()[0].split()
+        assert [int(v) for v in header[2:]] == [len(p.nodes), len(p.cells), len(p.neighbours)]
+    assert not part_files(target, 3)[0].exists()

@@ -27,20 +27,15 @@ order of their numbers in the whole mesh, the same on both sides).
 
 from __future__ import annotations
 
-import hashlib
-import shutil
 from dataclasses import dataclass
 from pathlib import Path
 
 import numpy as np
 
-from harness.core.atomic import write_atomic
 from harness.mesh.msh import AS_MESHIO, msh_text, read_msh
 from harness.mesh.simplex import FACETS, SimplexMesh
 
 ARTIFICIAL_LABEL = -111111
-# The file beside the parts naming the mesh they were cut from (its checksum) and the rank count.
-STAMP = "cut.txt"
 
 
 @dataclass(frozen=True)
@@ -88,15 +83,14 @@ def cell_faces(cells: np.ndarray) -> np.ndarray:
     return np.stack([cells[:, list(f)] for f in FACETS[d]], axis=1).reshape(-1, d)
 
 
-def facet_cells(mesh: SimplexMesh, span: int) -> np.ndarray:
-    """The cell of each labelled facet: among the cells with d of their vertices on the boundary,
-    the one that has it as a facet."""
+def facet_cells(mesh: SimplexMesh, labelled: np.ndarray, span: int) -> np.ndarray:
+    """The cell of each labelled facet (`labelled`: their facet_keys): among the cells with d of
+    their vertices on the boundary, the one that has it as a facet."""
     d = mesh.dimension
     on_boundary = np.zeros(len(mesh.points), dtype=bool)
     on_boundary[mesh.facets] = True
     near = np.nonzero(on_boundary[mesh.cells].sum(axis=1) >= d)[0]
     keys = facet_keys(cell_faces(mesh.cells[near]), span)
-    labelled = facet_keys(mesh.facets, span)
     order = np.argsort(labelled)
     where = np.searchsorted(labelled, keys, sorter=order).clip(max=len(order) - 1)
     hit = labelled[order[where]] == keys
@@ -116,8 +110,8 @@ def cut(mesh: SimplexMesh, count: int) -> list[Part]:
     owner = np.full(nodes_total, count, dtype=np.int64)
     np.minimum.at(owner, cells.ravel(), np.repeat(part, d + 1))
     span = nodes_total + 1
-    facet_cell = facet_cells(mesh, span)
     labelled_keys = facet_keys(mesh.facets, span)
+    facet_cell = facet_cells(mesh, labelled_keys, span)
     regions = mesh.cell_labels()
     cell_entities = mesh.cell_entities if mesh.cell_entities is not None else regions
     facet_entities = mesh.facet_entities if mesh.facet_entities is not None else mesh.labels
@@ -195,18 +189,12 @@ def part_files(directory: Path, rank: int) -> tuple[Path, Path]:
 
 
 def cut_files(mesh_file: Path, count: int, directory: Path) -> Path:
-    """The parts of `mesh_file` for `count` ranks in `directory` (made anew unless its stamp
-    names the same mesh bytes and rank count); returns `directory`."""
-    stamp = f"{hashlib.sha256(mesh_file.read_bytes()).hexdigest()} {count}\n"
-    if (directory / STAMP).is_file() and (directory / STAMP).read_text() == stamp:
-        return directory
-    if directory.exists():
-        shutil.rmtree(directory)
+    """The parts of `mesh_file` for `count` ranks, written into `directory` (new: a run's own,
+    harness/run/run.py); returns it."""
     directory.mkdir(parents=True)
     mesh = read_msh(mesh_file)
     for r, p in enumerate(cut(mesh, count)):
         msh, txt = part_files(directory, r)
         msh.write_text(msh_text(p.mesh, AS_MESHIO))
         txt.write_text(part_text(p, mesh))
-    write_atomic(directory / STAMP, stamp)
     return directory

@@ -71,7 +71,6 @@ class Invocation:
     meshes: tuple[tuple[int, Path], ...] = ()
     cut: tuple[Path, int] | None = None  # the mesh to cut into parts before it starts, and how many
 
-
     def bound(self, work: Path) -> list[str]:
         """The options of a run in `work`: its outputs there, a distributed solve's state read from there."""
         out = list(self.options)
