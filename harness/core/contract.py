@@ -79,7 +79,7 @@ class Failure(enum.Enum):
     LINEAR_SOLVER = (17, "the Krylov solver did not converge")
     BAD_ELECTRODES = (18, "an electrode shares a node with a clamped or ground part (two potentials at one point)")
     BAD_FLOATING = (19, "a floating electrode shares a node with a part of fixed potential (clamped, ground, electrode) or with another floating electrode")
-    NOT_UNIQUE = (20, "the solution is not unique: the body can slide along its contact")
+    NOT_UNIQUE = (20, "the solution is not unique: a family of states solves the scene")
     TIMEOUT = (None, "timed out")
     KILLED = (None, "killed by a signal")
     NO_OUTPUT = (None, "FreeFEM wrote no readable output")

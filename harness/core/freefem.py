@@ -244,7 +244,7 @@ def failure_reason(outcome: Outcome, timeout_s: float, detail: str, pressed: boo
     reason = EXIT_REASONS.get(code, f"FreeFEM exited with code {code}")
     if code == Failure.DIVERGED.code and not pressed:
         reason += PRESSED_HINT
-    return f"{reason}: {detail[:200]}" if detail else reason
+    return f"{reason}: {detail[:360]}" if detail else reason
 
 
 @functools.cache
