@@ -1,5 +1,6 @@
 """The project's house rules, read from its own files: FreeFEM's command-line options are read
-in one place (freefem/parameters.idp), and no test reads the committed results tree. Pure Python, no FreeFEM: each rule names the file and line that
+in one place (freefem/parameters.idp), the README stays a five-minute read, and no test reads
+the committed results tree. Pure Python, no FreeFEM: each rule names the file and line that
 breaks it. The layer rules of the harness's imports are tests/test_layers.py."""
 
 from __future__ import annotations
@@ -17,6 +18,7 @@ TESTS = Path(__file__).parent
 PARAMETERS = FREEFEM / "parameters.idp"
 # args.idp defines the readers themselves: the only other file that may touch ARGV.
 READERS = FREEFEM / "args.idp"
+README_LINES = 150  # the limit of a five-minute read (the README had 144 when it was last cut)
 
 # A read of an option: the readers of args.idp (argReal, argInt, argString; parameters.idp's
 # argOf<type> aliases of them), FreeFEM's getARGV.idp, or the command line itself.
@@ -66,6 +68,12 @@ def test_the_scripts_the_harness_writes_read_no_option():
             if isinstance(node, ast.Constant) and isinstance(node.value, str) and option_reads(node.value):
                 found.append(f"{path.relative_to(ROOT)}:{node.lineno}: {node.value.strip()[:80]}")
     assert not found, "FreeFEM option reads written by the harness:\n" + "\n".join(found)
+
+
+def test_the_readme_is_a_five_minute_read():
+    lines = (ROOT / "README.md").read_text().splitlines()
+    assert len(lines) <= README_LINES, (f"README.md has {len(lines)} lines, at most {README_LINES}: move the "
+                                        "details to docs/ and link them")
 
 
 # No test reads results/: the committed results are what `make` studies last wrote, and a test
