@@ -55,12 +55,14 @@ baseline: $(STAMP) freefem
 	-$(PY) -m harness convergence cases/paper.toml --levels 2,4,8,16,32 --set scene.name=paper_fast --force --results tests/gold
 
 # gold: the baseline, and the tables that `make verify` (the manufactured errors,
-# tests/test_mms.py) and `make cost` (peak memory per level, tests/test_reliability.py)
-# last wrote into results/, pinned as the tests' references.
+# tests/test_mms.py), `make cost` (peak memory per level, tests/test_reliability.py) and
+# `make paper3d` (each 3D level's unknowns and peak memory, both branches, the memory guard's
+# test in tests/test_reliability.py) last wrote into results/, pinned as the tests' references.
 .PHONY: gold
 gold: baseline
 	cp results/verification/mms_levels.csv tests/gold/mms_levels.csv
 	cp results/cost/scaling.csv tests/gold/scaling.csv
+	$(PY) scripts/paper3d_memory_gold.py results
 
 freefem:
 	@bash scripts/install-freefem.sh

@@ -47,3 +47,20 @@ def test_every_relative_link_resolves(page):
 
 def test_the_pages_have_links():
     assert len(links(ROOT / "README.md")) >= 10
+
+
+def test_the_pages_a_new_user_reads_say_how_to_choose_p2():
+    """P2 is the element for a thin part that bends (P1 locks): the tutorial and the geometry
+    page name the case key and the --set that select it, and both are what the schema takes."""
+    from harness.scene.schema import SCHEMA
+    from harness.scene.scene import apply_override
+
+    key = SCHEMA["scene"]["element"]
+    assert key.default == "P1" and key.check("P2") is None and key.check("P3") is not None
+    raw: dict = {}
+    apply_override(raw, "scene.element=P2")
+    assert raw == {"scene": {"element": "P2"}}
+    for page in ("tutorial.md", "geometry.md"):
+        text = (ROOT / "docs" / page).read_text()
+        assert 'element = "P2"' in text and "--set scene.element=P2" in text, page
+        assert "harness/scene/schema.py" in text and "lock" in text, page  # where the key lives, and why P2
