@@ -175,4 +175,18 @@ def region_definitions(regions: tuple[Region, ...], layout: Layout, dimension: i
         # One term per region; a cell's own term is its value, the others 0 * value = 0.
         terms = " + ".join(f"(region == {i + 1}) * {value[name]!r}" for i, value in enumerate(values))
         fields.append(f"RegionSpace rg{name} = {terms};")
-    return ["macro REGIONS 1 //", f"macro regionConstants {' '.join(fields)} //", *conductor_definitions(regions)]
+    groups = recovery_groups(regions, [tuple(value[name] for name in names) for value in values])
+    terms = " + ".join(f"(region == {i + 1}) * {g + 1}." for i, g in enumerate(groups))
+    fields.append(f"RegionSpace rgRecovery = {terms};")
+    return ["macro REGIONS 1 //", f"macro recoveryGroups {max(groups) + 1} //",
+            f"macro regionConstants {' '.join(fields)} //", *conductor_definitions(regions)]
+
+
+def recovery_groups(regions: tuple[Region, ...], constants: list[tuple[float, ...]]) -> list[int]:
+    """Each region's group for the error estimate's gradient recovery (freefem/estimator.idp),
+    0, 1, ... in order of first appearance: regions of the same constants (material and poling)
+    and the same conductor tie share one, since the gradient jumps only where the law does; so
+    a body split into regions of one material is estimated as the one-region body."""
+    keys = [(values, region.conductor) for region, values in zip(regions, constants)]
+    first = {key: index for index, key in enumerate(dict.fromkeys(keys))}
+    return [first[key] for key in keys]
