@@ -16,6 +16,7 @@ from harness.cli import main
 from harness.core import freefem
 from harness.core.contract import BODY_LABEL, Failure
 from harness.core.layout import REPO, Layout
+from harness.measure import agreement
 from harness.measure.fields import Fields
 from harness.mesh.jitter import Jitter, fixed_nodes, jittered, shortest_edges
 from harness.mesh.mesh import build_mesh, checked_level
@@ -117,11 +118,11 @@ def test_five_perturbations_each_with_its_own_results_folder():
 
 
 def test_a_difference_is_relative_to_the_larger_value_or_its_floor():
-    assert st.relative(1.0, 1.0 + 1e-9, 0.0) == pytest.approx(1e-9, rel=1e-6)
-    assert st.relative(0.0, 0.0, 0.0) == 0.0
+    assert agreement.relative(1.0, 1.0 + 1e-9, 0.0) == pytest.approx(1e-9, rel=1e-6)
+    assert agreement.relative(0.0, 0.0, 0.0) == 0.0
     # the barely touching branch's contact force, moved by 1e-12 of the 200 N/m it balances
-    assert st.relative(3.7e-6, 3.7e-6 + 2e-10, 200.0) == pytest.approx(1e-12)
-    assert st.relative(3.7e-6, 200.0, 200.0) > 0.99  # the pressed branch instead
+    assert agreement.relative(3.7e-6, 3.7e-6 + 2e-10, 200.0) == pytest.approx(1e-12)
+    assert agreement.relative(3.7e-6, 200.0, 200.0) > 0.99  # the pressed branch instead
 
 
 def square_fields(u: np.ndarray, theta: np.ndarray) -> Fields:
@@ -136,16 +137,45 @@ def test_the_field_difference_is_each_fields_relative_difference_in_its_norm():
     base = square_fields(u, theta)
     other = square_fields(u * (1 + 1e-9), theta + 3e-8 * level.points[:, 0])
     scales = {"U": 1.0, "Theta": 1.0}
-    out = st.field_differences(base, other, scales)
+    out = agreement.field_differences(base, other, scales)
     assert out["u"] == pytest.approx(1e-9, rel=1e-6)
-    grad_theta = st.norm_of(base, theta, "theta")
+    grad_theta = agreement.norm_of(base, theta, "theta")
     assert out["theta"] == pytest.approx(3e-8 / grad_theta, rel=1e-3)
+
+
+def test_a_jittered_solution_is_compared_as_a_function_not_node_by_node():
+    """A slender bender's u is mostly rotation: the same solution on nodes moved by 1e-9 h,
+    compared at the same node index, would differ by the rotation times the moves' gradient
+    (1e-9 / 1e-3 here, as 4e-8 on the bimorph); at the same point it is the same function."""
+    level = grid(7)
+    moved = jittered(level, Jitter(1e-9, 1)).points
+    solution = lambda p: np.column_stack([-p[:, 1] + 1e-3 * p[:, 0], p[:, 0]])  # rotation + small strain
+    theta = lambda p: 1.0 + p[:, 0]
+    base = Fields(level.points, level.cells, {"u": solution(level.points), "theta": theta(level.points)}, Path("a"))
+    other = Fields(moved, level.cells, {"u": solution(moved), "theta": theta(moved)}, Path("b"))
+    out = agreement.field_differences(base, other, {"U": 1.0, "Theta": 1.0})
+    assert out["u"] < 1e-11 and out["theta"] < 1e-11
+    by_index = agreement.norm_of(base, other.field("u") - base.field("u"), "u") / agreement.norm_of(base, base.field("u"), "u")
+    assert by_index > 1e-7  # what the comparison node by node would call a switch
+
+
+def test_a_resultant_within_its_balances_round_off_is_not_a_switch():
+    """The bimorph's contact force, 3.83 N/m, moved by 4.5e-8 N/m (1.2e-8 of itself) under 1e-12
+    of its load, where its force balance sums terms of 3.8e10 N/m (1000 eps of them: 8.4e-3 N/m);
+    the paper's barely touching 3.7e-6 N/m against its pressed 200 N/m is a switch."""
+    bimorph = lambda force: RunRecord(contact_force=force, checks={"applied_load": [0, 0], "force_reading": 3.803e10})
+    assert agreement.resultant_differences(bimorph(3.8318448337577777), bimorph(3.831844879241212))["contact_force"] < 1e-8
+    paper = lambda force: RunRecord(contact_force=force, checks={"applied_load": [0, -200.0], "force_reading": 1.2e5})
+    assert agreement.resultant_differences(paper(3.7e-6), paper(200.0))["contact_force"] > 0.99
+    assert agreement.resultant_differences(paper(3.7e-6), paper(3.7e-6 + 2e-10))["contact_force"] < 1e-11
+    heat = lambda flow: RunRecord(heat_in_contact=flow, checks={"heat_reading": 1e-2, "heat_contact_reading": 1.4e-4})
+    assert agreement.resultant_differences(heat(1.38e-4), heat(1.38e-4 * (1 + 2e-8)))["heat_in_contact"] > 1e-8
 
 
 def test_a_field_zero_up_to_round_off_is_measured_against_its_floor():
     level = grid(5)
     u = np.column_stack([level.points[:, 0], np.zeros(len(level.points))])
-    out = st.field_differences(square_fields(u, 1e-118 * level.points[:, 0]),
+    out = agreement.field_differences(square_fields(u, 1e-118 * level.points[:, 0]),
                                square_fields(u, 2e-118 * level.points[:, 0]), {"U": 1.0, "Theta": 373.0})
     assert out["theta"] < 1e-100 and out["u"] == 0.0
 
@@ -155,6 +185,8 @@ def test_the_verdict_is_sensitive_past_1e_8_or_on_any_change_of_status_or_checks
     assert st.Comparison({"u": 2e-8}, {}, 0.0, ()).sensitive
     assert st.Comparison({"u": 0.0}, {"heat_in_contact": 1.1e-8}, 0.0, ()).sensitive
     assert st.Comparison({}, {}, math.nan, ("status converged -> not_unique",)).sensitive
+    # a failed solve's answer is its status: the states two failures left are shown, not judged
+    assert not st.Comparison({"u": 0.5}, {}, 0.5, (), judged=False).sensitive
 
 
 def solved(failure: Failure | None, n: int = 8) -> st.Solved:

@@ -23,10 +23,6 @@ class Jitter:
     relative: float
     seed: int
 
-    @property
-    def label(self) -> str:
-        return f"jitter {self.relative:g} h, seed {self.seed}"
-
 
 def fixed_nodes(level: SimplexMesh) -> np.ndarray:
     """Whether each node must stay: on the boundary, on a labelled facet, or on a facet

@@ -33,9 +33,10 @@ from harness.arguments import add_common, layout_of, name_list
 from harness.core.errors import SceneError
 from harness.core.freefem import freefem_version
 from harness.core.writers import cell, markdown_table, write_csv, write_json, write_text
+from harness.measure.agreement import TOLERANCE
 from harness.study.pipeline import Guarded, Plan, run_pipeline
-from harness.study.stability import (KNOWN_SENSITIVE, PERTURBATIONS, TOLERANCE, UNPERTURBED, Config, all_configs,
-                                     compare, remedy_names, row_of, solution_summary, solve)
+from harness.study.stability import (KNOWN_SENSITIVE, PERTURBATIONS, UNPERTURBED, Config, all_configs, compare,
+                                     remedy_names, row_of, solution_summary, solve)
 
 HEADER = ("case", "start", "n", "status", "its (perturbed)", "max field difference", "max resultant difference",
           "verdict", "switched by")
@@ -104,12 +105,12 @@ def run(args: argparse.Namespace) -> int:
                 comparison = compare(base, other)
                 own.append(row_of(config, other, comparison))
                 if comparison.sensitive:
-                    switched.append(solution_summary(other))
+                    switched.append(solution_summary(other, args.results, comparison))
             line = summarise(config, own)
             rows += own
             lines.append(line)
             if switched:
-                branches[config.name] = {"unperturbed": solution_summary(base), "switched": switched}
+                branches[config.name] = {"unperturbed": solution_summary(base, args.results), "switched": switched}
             marks = "".join("S" if r["verdict"] == "sensitive" else "." for r in own[1:])
             print(f"[{count}/{len(configs)}] {config.name:<34} n={config.n:<2} {line['status']:<15} its {line['its']:<12}"
                   f" {marks}  field {cell(line['field_difference']) or '-':<9} resultant"

@@ -15,12 +15,10 @@ from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Any, Iterator, Mapping, Sequence
 
-import numpy as np
-
 from harness.core.layout import REPO, Layout
-from harness.measure.fields import Fields, read_fields
-from harness.measure.norm_table import FIELD_NAMES, measure_of
-from harness.measure.norms import P1_INTEGRANDS, error_norms, simplex_seminorm
+from harness.measure.agreement import TOLERANCE, exact_points, field_differences, resultant_differences
+from harness.measure.fields import read_fields
+from harness.measure.norm_table import FIELD_NAMES
 from harness.measure.run_checks import judge
 from harness.mesh.jitter import Jitter
 from harness.mesh.mesh import GMSH, build_mesh
@@ -34,22 +32,8 @@ SCENES = REPO / "cases"
 # The level each case is compared at: moderate, so that the whole study stays within minutes
 # (a case whose levels stop below it is compared at its finest).
 LEVEL = {2: 8, 3: 4}
-# Two solutions agree when every field and resultant differs by at most this, relative: 1e4
-# times the perturbations (1e-12 of the loads moves a solution by about 1e-12, 1e-9 h of the
-# nodes by about 1e-9 h |grad|: measured at most 1e-9, docs/hard-cases.md), far below any
-# distance between two branches (the paper's two differ by O(1)).
-TOLERANCE = 1e-8
 LOAD_STEP = 1e-12
 JITTER = 1e-9
-# A difference is relative to the larger of the two values and a floor, the size of what it
-# is measured against: a field's norm against 1e-14 of its scale over the body (run.json's
-# scales, freefem/scaling.idp; lift_off's theta is 1e-118 K, zero up to round-off), a contact
-# resultant against what it balances, so that the barely touching branch's 3.7e-6 N/m of
-# contact force, which 1e-12 of the 200 N/m applied moves by 2e-10, is not a switch.
-SCALE_OF = {"u": "U", "phi": "Phi", "theta": "Theta"}
-FIELD_FLOOR = 1e-14
-RESULTANTS = {"contact_force": "force", "friction_force": "force", "heat_in_contact": "heat_contact_reading",
-              "charge_in_contact": "charge_contact_reading"}
 
 
 # ---- what is perturbed --------------------------------------------------------------------
@@ -215,6 +199,7 @@ class Solved:
     outcome: LevelOutcome
     n_wanted: int  # the compared level: a chain may fail below it
     chain_its: list[int | None] = field(default_factory=list)
+    mesh: Path | None = None  # the compared level's mesh file
 
     @property
     def status(self) -> str:
@@ -243,66 +228,7 @@ def solve(config: Config, perturbation: Perturbation, layout: Layout, force: boo
     outcomes = run_levels(scene, meshes, layout, force=force, progress=quiet, pipelined=False)
     last = list(outcomes.values())[-1]
     its = [o.record.newton_iterations if o.record else None for o in outcomes.values()]
-    return Solved(perturbation, scene, last, config.n, its)
-
-
-# ---- how far two solutions are ------------------------------------------------------------
-
-def relative(a: float, b: float, floor: float) -> float:
-    """|a - b| over the larger of |a|, |b| and `floor` (0 when both are 0 and so is the floor)."""
-    size = max(abs(a), abs(b), floor)
-    return abs(a - b) / size if size > 0 else 0.0
-
-
-def norm_of(fields: Fields, values: np.ndarray, name: str) -> float:
-    """A field's norm of E^h (V for u, W for phi, Q for theta) on the mesh of `fields`."""
-    stem = measure_of(name).stem
-    if fields.tetrahedra is not None:
-        return simplex_seminorm(fields.points, fields.cells, values, stem)
-    return float(np.sqrt(P1_INTEGRANDS[stem](fields.points, fields.triangles, values)))
-
-
-def body_measure(fields: Fields) -> tuple[float, float]:
-    """The body's area (volume in 3D) and its size (the longest side of its bounding box)."""
-    d = fields.cells.shape[1] - 1
-    corners = fields.points[fields.cells][:, :, :d]
-    measure = float(np.abs(np.linalg.det(corners[:, 1:] - corners[:, :1])).sum()) / math.factorial(d)
-    return measure, float(np.ptp(fields.points, axis=0).max())
-
-
-def field_differences(base: Fields, other: Fields, scales: Mapping[str, float]) -> dict[str, float]:
-    """Each field's relative difference in its norm: ||f' - f|| / max(||f||, ||f'||, floor),
-    the floor FIELD_FLOOR of the field's scale varying over the body's size. The same mesh
-    (a jittered one differs by 1e-9 h, below solution.vtu's single-precision coordinates):
-    node by node; any other: the P1 transfer of the convergence study."""
-    measure, size = body_measure(base)
-    same = base.points.shape == other.points.shape and np.allclose(base.points, other.points, rtol=0, atol=1e-6 * size)
-    names = [name for name in FIELD_NAMES if name in base.values and name in other.values]
-    apart = ({name: norm_of(base, other.field(name) - base.field(name), name) for name in names} if same
-             else error_norms(base, other, names))
-    out = {}
-    for name in names:
-        floor = FIELD_FLOOR * scales.get(SCALE_OF[name], 0.0) * math.sqrt(measure) / size
-        size_of = max(norm_of(base, base.field(name), name), norm_of(other, other.field(name), name), floor)
-        out[name] = apart[name] / size_of if size_of > 0 else 0.0
-    return out
-
-
-def resultant_floor(record: RunRecord, reading: str) -> float:
-    if reading == "force":  # the applied load's magnitude: what the contact force balances
-        load = (record.checks or {}).get("applied_load") or [0.0]
-        return float(np.linalg.norm(np.asarray(load, dtype=float)))
-    return abs(float((record.checks or {}).get(reading) or 0.0))
-
-
-def resultant_differences(base: RunRecord, other: RunRecord) -> dict[str, float]:
-    out = {}
-    for key, reading in RESULTANTS.items():
-        a, b = getattr(base, key), getattr(other, key)
-        if a is None or b is None:
-            continue
-        out[key] = relative(float(a), float(b), max(resultant_floor(base, reading), resultant_floor(other, reading)))
-    return out
+    return Solved(perturbation, scene, last, config.n, its, meshes[config.n] if last.n == config.n else None)
 
 
 @dataclass(frozen=True)
@@ -313,6 +239,7 @@ class Comparison:
     resultants: dict[str, float]
     nodal: float
     changed: tuple[str, ...]  # what else changed: status, checks
+    judged: bool = True  # whether the differences count (both converged), or are only shown
 
     @property
     def field_max(self) -> float:
@@ -324,7 +251,8 @@ class Comparison:
 
     @property
     def sensitive(self) -> bool:
-        return bool(self.changed) or self.field_max > TOLERANCE or self.resultant_max > TOLERANCE
+        moved = self.field_max > TOLERANCE or self.resultant_max > TOLERANCE
+        return bool(self.changed) or (self.judged and moved)
 
 
 def verdict_changes(base: Solved, other: Solved) -> tuple[str, ...]:
@@ -337,15 +265,20 @@ def verdict_changes(base: Solved, other: Solved) -> tuple[str, ...]:
 
 
 def compare(base: Solved, other: Solved) -> Comparison:
+    """`other` against `base`. Two converged solves are judged by their differences too; where
+    either failed, its answer is its status, and the differences of the states the failed run
+    left (its solution.vtu) are shown beside it, not judged: a slide that nothing determines
+    may end anywhere along its family."""
     changed = verdict_changes(base, other)
-    if not (base.outcome.ok and other.outcome.ok):
-        return Comparison({}, {}, math.nan, changed)
-    assert base.outcome.directory is not None and other.outcome.directory is not None
+    judged = base.outcome.ok and other.outcome.ok
+    dirs = (base.outcome.directory, other.outcome.directory)
+    if not all(d is not None and (d / "solution.vtu").is_file() for d in dirs) or base.outcome.n != other.outcome.n:
+        return Comparison({}, {}, math.nan, changed, judged)
+    a, b = (d / "solution.vtu" for d in dirs if d is not None)
     scales = base.record.scales or {}
-    fields = field_differences(read_fields(base.outcome.directory / "solution.vtu"),
-                               read_fields(other.outcome.directory / "solution.vtu"), scales)
-    nodal = field_difference(base.outcome.directory, other.outcome.directory, scales)
-    return Comparison(fields, resultant_differences(base.record, other.record), nodal, changed)
+    fields = field_differences(exact_points(read_fields(a), base.mesh), exact_points(read_fields(b), other.mesh), scales)
+    nodal = field_difference(a.parent, b.parent, scales)
+    return Comparison(fields, resultant_differences(base.record, other.record), nodal, changed, judged)
 
 
 # ---- the table ----------------------------------------------------------------------------
@@ -373,10 +306,16 @@ SUMMARY_KEYS = ("newton_iterations", "max_abs_u", "min_phi", "max_phi", "max_the
                 "friction_force", "active_measure", "heat_in_contact", "charge_in_contact")
 
 
-def solution_summary(solved: Solved) -> dict[str, Any]:
+def solution_summary(solved: Solved, root: Path, comparison: Comparison | None = None) -> dict[str, Any]:
     """What a branch is, in a few numbers: its status, Newton's work and the physical
-    quantities of run.json; and where its fields are."""
+    quantities of run.json, where its fields are (under the study's `root`), and with
+    `comparison` how far it is from the unperturbed solve."""
     record = solved.record
-    return {"perturbation": solved.perturbation.name, "status": solved.status,
-            **{key: record.value(key) for key in SUMMARY_KEYS},
-            "directory": str(solved.outcome.directory or "")}
+    directory = solved.outcome.directory
+    out = {"perturbation": solved.perturbation.name, "status": solved.status,
+           **{key: record.value(key) for key in SUMMARY_KEYS},
+           "directory": str(directory.relative_to(root)) if directory and directory.is_relative_to(root) else str(directory)}
+    if comparison is not None:
+        out.update({"changed": list(comparison.changed), "field_differences": comparison.fields,
+                    "resultant_differences": comparison.resultants})
+    return out
