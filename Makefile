@@ -135,6 +135,16 @@ verify: $(STAMP) freefem
 stress: $(STAMP) freefem
 	$(PY) -m harness stress $(CLUSTER_FLAGS)
 
+# Branch stability: every hard case (as its file asks, and from its coarsest start alone) and
+# every scene of cases/ at one level (n = 8 in 2D, 4 in 3D), then five more times with its loads
+# scaled by 1 +- a few 1e-12 or its interior nodes jittered by 1e-9 h; each against the
+# unperturbed solve, to 1e-8 in every field's norm and contact resultant, status and checks,
+# into results/stability/ (stability.csv, stability.md, sensitive.json; ~5 min on 2 cores).
+# Exits 1 when a case is branch-sensitive and not documented so (docs/hard-cases.md).
+.PHONY: stability
+stability: $(STAMP) freefem
+	$(PY) -m harness stability
+
 # Both solution branches of the paper's scene, from zero and from the pressed start, each a
 # convergence study on levels 2 ... 64, into results/branches/ (branches.csv, branches.md);
 # then the same for the paper drawn in gmsh, into results/branches_paper_gmsh/ (equal to the

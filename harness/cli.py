@@ -21,7 +21,7 @@ from harness.core.faults import guarded, report
 # task each serves (the top-level help lists them so).
 TASKS: dict[str, tuple[str, ...]] = {
     "your own part (a case file of yours)": ("solve", "convergence", "adapt", "plot"),
-    "checking the scheme": ("verify", "scenes", "stress", "branches", "crosscheck"),
+    "checking the scheme": ("verify", "scenes", "stress", "stability", "branches", "crosscheck"),
     "what it costs and how far it scales": ("cost", "bench", "solvers", "profile", "scale"),
 }
 STUDIES: dict[str, str] = {
@@ -29,6 +29,7 @@ STUDIES: dict[str, str] = {
     "solve": "solve one level of a case and print its results and physical checks",
     "scenes": "a convergence study of every scene in cases/ and one summary table",
     "stress": "the stress suite: every case of cases/hard/, classified, with physical checks",
+    "stability": "branch stability: every hard case and scene again with its loads and mesh perturbed by round-off",
     "branches": "the solution branches of the paper's scene from four starts",
     "verify": "true errors against exact (manufactured) solutions, and the Grid Convergence Index",
     "adapt": "adaptive refinement from the error estimate (2D and 3D): error against unknowns, beside uniform",

@@ -22,6 +22,7 @@ from harness.core.errors import EnvironmentFault, MeshError
 from harness.core.faults import disk_full, fault
 from harness.core.guards import mesh_file_bytes, need_disk
 from harness.mesh import box_mesh, gmsh_mesh, rectangle_mesh
+from harness.mesh.jitter import Jitter, jittered
 from harness.mesh.mesh_check import MeshSummary, check_arrays
 from harness.mesh.msh import AS_GMSH, AS_GRADED, AS_MESHIO, MshStyle, msh_text, write_msh
 from harness.mesh.simplex import SimplexMesh, quality, quality_warning, role_measures
@@ -67,11 +68,17 @@ def coarser_meshes(geometry: Geometry | Box | GmshGeometry, n: int, count: int, 
         return [build_mesh(geometry, m, directory, warn=False).path for m in levels]
 
 
-def build_mesh(geometry: Geometry | Box | GmshGeometry, n: int, directory: Path, warn: bool = True) -> MeshSummary:
+def build_mesh(geometry: Geometry | Box | GmshGeometry, n: int, directory: Path, warn: bool = True,
+               jitter: Jitter | None = None) -> MeshSummary:
     """Write mesh_n<n>.msh into `directory` (only replacing it if the bytes change) and
     return its checked summary; `warn`: say when its quality is poor (the study's own levels,
-    not the coarser meshes a run asks for again)."""
+    not the coarser meshes a run asks for again); `jitter`: its interior nodes moved so
+    (harness/mesh/jitter.py, the branch-stability study's meshes only), after the checks,
+    which a move of round-off's order cannot change. A run's key holds its mesh's checksum,
+    so a run on a jittered mesh is never served one on the level as generated."""
     level, summary, style = checked_level(geometry, n, warn)
+    if jitter is not None:
+        level = jittered(level, jitter)
     target = write_level(lambda tmp: write_msh(level, tmp, style), geometry, n, directory)
     return replace(summary, path=target)
 
