@@ -20,6 +20,8 @@ from harness.core.contract import ExitCode
 from harness.measure.fields import read_state
 from physics_runs import CASES, DATA, solve
 
+LIBRARY = Path(__file__).parents[1] / "freefem" / "materials"
+
 # freefem/materials/Brass.idp (isotropic) and PZT-5H.idp: C33 and C13 [Pa].
 C33 = {"Brass": 155.25e9, "PZT-5H": 11.7e10}
 C13 = {"Brass": 69.75e9, "PZT-5H": 8.41e10}
@@ -249,6 +251,74 @@ def test_the_rectangles_two_blocks_are_the_two_layers_drawn_in_gmsh(tmp_path, n,
     order_rect, order_gmsh = np.lexsort(at_rect.T), np.lexsort(at_gmsh.T)
     assert np.array_equal(at_rect[order_rect], at_gmsh[order_gmsh])
     assert u_rect[order_rect] == pytest.approx(u_gmsh[order_gmsh], abs=1e-10 * scale)
+
+
+def brass_named(path: Path, name: str, stiffer: bool = False) -> Path:
+    """freefem/materials/Brass.idp as the material file `path` named `name` (its C11 = C22 = C33
+    raised by 100 GPa when `stiffer`: another answer, to tell the two files apart)."""
+    text = (LIBRARY / "Brass.idp").read_text().replace('materialName = "Brass"', f'materialName = "{name}"')
+    if stiffer:
+        assert text.count("155.25e9") == 3
+        text = text.replace("155.25e9", "255.25e9")
+    path.parent.mkdir(parents=True, exist_ok=True)
+    path.write_text(text)
+    return path
+
+
+def bilayer_rect_with(case: Path, lower: str) -> Path:
+    """tests/data/bilayer_rect.toml as `case`, its lower block of the material `lower`."""
+    text = (DATA / "bilayer_rect.toml").read_text()
+    assert 'lower = "Brass"\n' in text
+    case.parent.mkdir(parents=True, exist_ok=True)
+    case.write_text(text.replace('lower = "Brass"\n', f'lower = "{lower}"\n', 1))
+    return case
+
+
+def assert_brass_under_pzt(run, n: int, results: Path) -> None:
+    """The known answer of two layers in series, brass below, PZT-5H above."""
+    u = read_state(results / "bilayer_rect" / f"n{n}" / "state.txt")[0].reshape(-1, 2)
+    exact = layers_exact(grid(run.fields.points[:, 1], n), "Brass", "PZT-5H")
+    # Round-off only, as the blocks' test above (measured 6.8e-16 of max |u_y|).
+    assert u[:, 1] == pytest.approx(exact, abs=1e-10 * np.abs(exact).max())
+
+
+def test_a_regions_material_file_is_the_one_beside_the_case_file_not_the_one_where_it_runs(tmp_path, monkeypatch):
+    """`lower = "Soft.idp"` is the Soft.idp beside the case file, as `scene.material` and a .geo
+    are; a Soft.idp in the folder the run starts from (stiffer here) is not read. Before, it
+    was: a wrong answer with exit 0. run.json records each region's file."""
+    case = bilayer_rect_with(tmp_path / "case" / "bilayer_rect.toml", "Soft.idp")
+    beside = brass_named(tmp_path / "case" / "Soft.idp", "Soft")
+    brass_named(tmp_path / "elsewhere" / "Soft.idp", "Soft", stiffer=True)
+    monkeypatch.chdir(tmp_path / "elsewhere")
+    run = solve(case, 2, tmp_path / "results")
+    assert_brass_under_pzt(run, 2, tmp_path / "results")
+    assert run.record.regions == [{"name": "lower", "material": "Soft", "file": str(beside.resolve())},
+                                  {"name": "upper", "material": "PZT-5H", "file": str((LIBRARY / "PZT-5H.idp").resolve())}]
+
+
+@pytest.mark.parametrize("given", ["../materials/Soft.idp", "absolute"])
+def test_a_regions_material_may_be_a_path_relative_to_the_case_file_or_absolute(tmp_path, given):
+    """A region's own material file by a path, as `scene.material` takes one (docs/materials.md);
+    before, a path was refused ("must be a material name")."""
+    soft = brass_named(tmp_path / "materials" / "Soft.idp", "Soft")
+    case = bilayer_rect_with(tmp_path / "case" / "bilayer_rect.toml", str(soft) if given == "absolute" else given)
+    run = solve(case, 2, tmp_path / "results")
+    assert_brass_under_pzt(run, 2, tmp_path / "results")
+    assert run.record.regions[0] == {"name": "lower", "material": "Soft", "file": str(soft.resolve())}
+
+
+@pytest.mark.parametrize("given, message", [
+    ("../materials/Missing.idp", "unknown material"),
+    ("../materials/Soft", "must be a material name or a path to a .idp file"),
+])
+def test_a_bad_region_material_path_is_one_line_naming_the_case_file(tmp_path, capsys, given, message):
+    brass_named(tmp_path / "materials" / "Soft.idp", "Soft")
+    case = bilayer_rect_with(tmp_path / "case" / "bilayer_rect.toml", given)
+    code = main(["solve", str(case), "--n", "2", "--results", str(tmp_path / "results")])
+    err = capsys.readouterr().err.strip().splitlines()
+    assert code == ExitCode.INPUT == 2
+    assert len(err) == 1 and err[0].startswith(f"error: {case}") and message in err[0], err
+    assert not (tmp_path / "results" / "bilayer_rect" / "n2").exists()
 
 
 @pytest.mark.parametrize("n", [2, 4])

@@ -266,6 +266,9 @@ def collect(
                           peak_rss_mb=record.peak_rss_mb if own else outcome.peak_rss_mb,
                           initial_guess=scene.initial_guess,
                           started_from=guess if not start else f"file {start.state}")
+    if scene.regions:  # FreeFEM's `material` names the first region's only
+        record = record.with_(regions=[{"name": r.name, "material": layout.material_file(r.material).stem,
+                                        "file": str(layout.material_file(r.material).resolve())} for r in scene.regions])
     grip = grip_warning(scene, record)
     if grip:
         record = record.with_(warnings=[grip])

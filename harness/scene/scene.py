@@ -19,7 +19,8 @@ from harness.scene.petsc_options import default_options
 from harness.scene.box import Box, parse_box
 from harness.scene.gmsh_geometry import GmshGeometry, parse_gmsh
 from harness.scene.poling import Poling, default_axis, parse_poling
-from harness.scene.regions import Region, any_rotated, check_conductors, check_regions, regions_of
+from harness.scene.regions import (Region, any_rotated, check_conductors, check_regions, regions_of,
+                                   with_paths_resolved)
 from harness.scene.schema import (EFFECTS, REQUIRED, SCHEMA, SOLVER_SECTIONS, Key, effect_of, geometry_keys,
                             is_material_path, unbounded_keys, unread_by_law)
 from harness.scene.sections import sections_of
@@ -233,6 +234,7 @@ def load_scene(path: Path, overrides: Iterable[str] = ()) -> Scene:
         parse_poling(table["scene"]["poling_axis"], getattr(geometry, "dimension", 2))
         regions = check_regions(table["scene"]["materials"], table["scene"]["material"], geometry)
         if regions:
+            table["scene"]["materials"] = with_paths_resolved(table["scene"]["materials"], path.parent)
             geometry = dataclasses.replace(geometry, regions=regions)
             check_conductors(table, regions_of(table["scene"]["materials"], regions, table["scene"]["poling_axis"],
                                                getattr(geometry, "dimension", 2)))
