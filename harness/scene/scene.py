@@ -13,6 +13,7 @@ from typing import Any, Iterable
 
 from harness.scene.electrodes import check_electrodes
 from harness.core.errors import SceneError
+from harness.core.layout import case_path
 from harness.scene.floating import check_floating
 from harness.scene.linear_solvers import LinearSolver, Memory, solver
 from harness.scene.petsc_options import default_options
@@ -227,7 +228,7 @@ def load_scene(path: Path, overrides: Iterable[str] = ()) -> Scene:
             apply_override(raw, item)
         table, warnings = resolve(raw)
         if is_material_path(table["scene"]["material"]):  # relative to the case file, as a .geo
-            table["scene"]["material"] = str((path.parent / table["scene"]["material"]).resolve())
+            table["scene"]["material"] = str(case_path(path.parent, table["scene"]["material"], "scene.material"))
         geometry = parse_any_geometry(table, path.parent)
         if "piezoelectric" in table["scene"]["effects"]:
             check_electrodes(geometry.parts(), max(geometry.width, geometry.height))
