@@ -5,8 +5,10 @@ a copy of the template is picked up by name."""
 
 from __future__ import annotations
 
+import os
 import re
 import shutil
+import tempfile
 from pathlib import Path
 
 import numpy as np
@@ -341,3 +343,47 @@ def test_a_file_a_material_includes_is_in_the_runs_key(tmp_path, capsys, include
     second, reused = charge()
     assert not reused
     assert second == pytest.approx(2 * first, rel=1e-10)  # round-off of the linear solve, as above
+
+
+# A material file that ends FreeFEM, or never ends: FreeFEM reads it when the scene's constants
+# are asked for (harness/scene/material_constants.py), before anything is meshed.
+RUNAWAY = {
+    "exit(0)": ("exit(0);", "ended before it printed the constants, with exit code 0 (does the file call exit?)"),
+    "a loop": ("while (1) { int i = 0; }", "timed out after 2 s"),
+    "a syntax error": ("real x = ;", "FreeFEM compile error"),
+}
+
+
+@pytest.mark.parametrize("case", RUNAWAY)
+def test_a_material_file_that_ends_freefem_or_loops_is_bad_input_named(case, tmp_path, capsys, monkeypatch):
+    """One line naming the file, exit 2 (bad input: the file is the user's), and the timeout
+    when it loops; nothing meshed, no FreeFEM left running. Before, exit 3 (a failed run) for
+    each, without the timeout."""
+    from harness.scene import material_constants
+
+    monkeypatch.setattr(material_constants, "READ_TIMEOUT_S", 2.0)  # 60 s in earnest
+    scratch = tmp_path / "tmp"  # where FreeFEM runs on the file: this test's own temp dirs
+    scratch.mkdir()
+    monkeypatch.setattr(tempfile, "tempdir", str(scratch))
+    line, message = RUNAWAY[case]
+    path = variant(tmp_path, "Runaway")
+    path.write_text(path.read_text() + f"\n{line}\n")
+    code = main(["solve", str(case_with_material(tmp_path, "Runaway.idp")), "--n", "4",
+                 "--results", str(tmp_path / "results")])
+    err = capsys.readouterr().err.strip().splitlines()
+    assert code == 2
+    assert len(err) == 1 and err[0].startswith(f"error: invalid material file {path}: ") and message in err[0], err
+    assert not (tmp_path / "results").exists()
+    assert not any(scratch.iterdir())  # its temp dir removed
+    assert not [cwd for cwd in process_dirs() if cwd.is_relative_to(scratch)]  # and no FreeFEM left in it
+
+
+def process_dirs() -> list[Path]:
+    """The working directory of every process this user can see."""
+    out = []
+    for proc in Path("/proc").glob("[0-9]*"):
+        try:
+            out.append(Path(os.readlink(proc / "cwd")))
+        except OSError:  # ended meanwhile, or not ours
+            continue
+    return out

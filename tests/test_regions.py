@@ -381,6 +381,9 @@ def test_a_block_off_the_levels_grid_is_named(tmp_path, capsys):
     code = main(["solve", str(DATA / "bilayer_rect.toml"), "--n", "3", "--results", str(tmp_path)])
     err = capsys.readouterr().err.strip().splitlines()
     assert code == ExitCode.INPUT and len(err) == 1 and "block 'lower' has a side at 0.5, not a multiple of h = 1/3" in err[0], err
+    # Refused before anything is meshed, naming the case file (it named only the level and block).
+    assert err[0].startswith(f"error: {DATA / 'bilayer_rect.toml'}: n=3: block 'lower'"), err
+    assert not (tmp_path / "bilayer_rect").exists()
 
 
 # PZT-5H's beta33 [C/(V m)] (freefem/materials/PZT-5H.idp).
