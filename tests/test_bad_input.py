@@ -79,9 +79,11 @@ def test_a_loop_of_symbolic_links_in_a_case_files_path_is_one_line_and_exit_2(tm
     if key == "scene.material":
         case = case_beside(tmp_path, PAPER, 'material = "BaTiO3"', 'material = "loop.idp"')
     elif key == "scene.materials.lower":
-        case = case_beside(tmp_path, ROOT / "tests" / "data" / "bilayer_rect.toml", 'lower = "Brass"', 'lower = "loop.idp"')
+        case = case_beside(tmp_path, ROOT / "tests" / "data" / "bilayer_rect.toml",
+                           'lower = "Brass"', 'lower = "loop.idp"')
     else:
-        case = case_beside(tmp_path, ROOT / "cases" / "paper_gmsh.toml", 'file = "geo/paper.geo"', f'file = "{loop.name}"')
+        case = case_beside(tmp_path, ROOT / "cases" / "paper_gmsh.toml",
+                           'file = "geo/paper.geo"', f'file = "{loop.name}"')
     code = main(["solve", str(case), "--n", "2", "--results", str(tmp_path / "results")])
     err = capsys.readouterr().err.strip().splitlines()
     assert code == ExitCode.INPUT == 2

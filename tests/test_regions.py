@@ -292,8 +292,9 @@ def test_a_regions_material_file_is_the_one_beside_the_case_file_not_the_one_whe
     monkeypatch.chdir(tmp_path / "elsewhere")
     run = solve(case, 2, tmp_path / "results")
     assert_brass_under_pzt(run, 2, tmp_path / "results")
+    pzt = LIBRARY / "PZT-5H.idp"
     assert run.record.regions == [{"name": "lower", "material": "Soft", "file": str(beside.resolve())},
-                                  {"name": "upper", "material": "PZT-5H", "file": str((LIBRARY / "PZT-5H.idp").resolve())}]
+                                  {"name": "upper", "material": "PZT-5H", "file": str(pzt.resolve())}]
 
 
 @pytest.mark.parametrize("given", ["../materials/Soft.idp", "absolute"])

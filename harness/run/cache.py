@@ -4,8 +4,8 @@ The key covers everything that decides a result: the generated main.edp and Free
 options, the harness code that writes them, the solver sources, the material file the scene
 uses and every file its materials include (recursively), the mesh, the scene values, the
 start (a coarser level by *its* key, so that round-off differences between identical runs
-do not invalidate the levels above) and the FreeFEM version. A cached level is reused only when its key matches and every
-output still has the checksum it was written with."""
+do not invalidate the levels above) and the FreeFEM version. A cached level is reused only
+when its key matches and every output still has the checksum it was written with."""
 
 from __future__ import annotations
 

@@ -77,5 +77,6 @@ def _constants(material_file: str, reduction_file: str, poling: tuple[tuple[str,
     elif code == 0:
         why = "FreeFEM ended before it printed the constants, with exit code 0 (does the file call exit?)"
     else:
-        why = f"{freefem.EXIT_REASONS.get(code, f'FreeFEM exited with code {code}')}: {freefem.error_detail(text) or 'no detail'}"
+        reason = freefem.EXIT_REASONS.get(code, f"FreeFEM exited with code {code}")
+        why = f"{reason}: {freefem.error_detail(text) or 'no detail'}"
     raise SceneError(f"invalid material file {material_file}: {why}")

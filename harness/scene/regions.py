@@ -141,8 +141,8 @@ def with_paths_resolved(materials: dict[str, Any], case_dir: Path) -> dict[str, 
     def resolved(name: str, material: str) -> str:
         return str(case_path(case_dir, material, f"scene.materials.{name}")) if is_material_path(material) else material
 
-    return {name: resolved(name, entry) if isinstance(entry, str) else {**entry, "material": resolved(name, entry["material"])}
-            for name, entry in materials.items()}
+    return {name: resolved(name, entry) if isinstance(entry, str)
+            else {**entry, "material": resolved(name, entry["material"])} for name, entry in materials.items()}
 
 
 def check_conductors(table: dict[str, dict[str, Any]], regions: tuple[Region, ...]) -> None:
