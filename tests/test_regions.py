@@ -387,6 +387,13 @@ def test_a_block_off_the_levels_grid_is_named(tmp_path, capsys):
     assert not (tmp_path / "bilayer_rect").exists()
 
 
+def test_blocks_off_the_grid_of_the_boxs_unstructured_mesh_are_not_refused(tmp_path):
+    """gmsh cuts the box's unstructured tetrahedra along the blocks' faces: the guard that names
+    an off-grid block (before meshing) asks what the mesher asks, so n = 3 runs."""
+    run = solve(DATA / "bilayer_box.toml", 3, tmp_path, 'geometry.diagonals="unstructured"')
+    assert run.record.converged is True
+
+
 # PZT-5H's beta33 [C/(V m)] (freefem/materials/PZT-5H.idp).
 BETA33 = 1.301565607e-8
 ROLLERS = 'geometry.roles={bottom = "clamped", sides = "roller_x", top = "electrode"}'

@@ -30,6 +30,7 @@ from harness.core.faults import check_results_root, naming
 from harness.core.guards import (Slope, check_memory, check_nested, check_not_shallower, check_slope_levels,
                                  geometry_depth, mesh_file_bytes, need_disk)
 from harness.run.launcher import check_level_ranks
+from harness.mesh.mesh import on_grid_blocks
 from harness.scene.blocks import check_on_grid
 from harness.scene.scene import Scene, load_scene
 
@@ -121,7 +122,7 @@ def check_blocks_on_grid(scene: Scene, n: int) -> None:
     that the one line names the case file (the mesh generator, which checks it again, knows only
     the geometry)."""
     try:
-        check_on_grid(getattr(scene.geometry, "blocks", ()), n)
+        check_on_grid(on_grid_blocks(scene.geometry), n)
     except MeshError as exc:
         raise SceneError(f"{scene.source}: {exc}") from None
 
