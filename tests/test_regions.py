@@ -266,11 +266,13 @@ def brass_named(path: Path, name: str, stiffer: bool = False) -> Path:
 
 
 def bilayer_rect_with(case: Path, lower: str) -> Path:
-    """tests/data/bilayer_rect.toml as `case`, its lower block of the material `lower`."""
+    """tests/data/bilayer_rect.toml as `case`, its lower block of the material `lower` (or the
+    region's table, when `lower` is one: `{material = ...}`)."""
     text = (DATA / "bilayer_rect.toml").read_text()
     assert 'lower = "Brass"\n' in text
     case.parent.mkdir(parents=True, exist_ok=True)
-    case.write_text(text.replace('lower = "Brass"\n', f'lower = "{lower}"\n', 1))
+    entry = lower if lower.startswith("{") else f'"{lower}"'
+    case.write_text(text.replace('lower = "Brass"\n', f"lower = {entry}\n", 1))
     return case
 
 
@@ -297,7 +299,7 @@ def test_a_regions_material_file_is_the_one_beside_the_case_file_not_the_one_whe
                                   {"name": "upper", "material": "PZT-5H", "file": str(pzt.resolve())}]
 
 
-@pytest.mark.parametrize("given", ["../materials/Soft.idp", "absolute"])
+@pytest.mark.parametrize("given", ["../materials/Soft.idp", "absolute", '{material = "../materials/Soft.idp"}'])
 def test_a_regions_material_may_be_a_path_relative_to_the_case_file_or_absolute(tmp_path, given):
     """A region's own material file by a path, as `scene.material` takes one (docs/materials.md);
     before, a path was refused ("must be a material name")."""
