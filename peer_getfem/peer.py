@@ -34,7 +34,7 @@ import numpy as np
 
 from gmsh22 import CELL_REGION, MeshFileError, getfem_mesh, read_msh
 from newton import NewtonResult, Unknowns, newton
-from rotation import turned
+from rotation import length, turned, unit
 from terms import (CHARGE_OF, CONTACT, CONTACT_MACROS, FLOATING, Body, Problem, define_functions, macros, reduced,
                    resultants, scales, terms)
 
@@ -110,9 +110,9 @@ def oriented(material: dict, poling: list[float] | None, dimension: int) -> dict
     if poling is None:
         return material
     axis = np.array(poling, float) if dimension == 3 else np.array([poling[0], 0.0, poling[1]], float)
-    if not (np.isfinite(axis).all() and np.linalg.norm(axis) > 0):
+    if not (np.isfinite(axis).all() and length(axis) > 0):
         raise InputError(f"poling axis {poling} (a nonzero vector of {dimension} numbers)")
-    return material if np.array_equal(axis / np.linalg.norm(axis), [0.0, 0.0, 1.0]) else turned(material, axis)
+    return material if np.array_equal(unit(axis), [0.0, 0.0, 1.0]) else turned(material, axis)
 
 
 def solve(spec: dict) -> dict:

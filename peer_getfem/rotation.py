@@ -19,11 +19,32 @@ import numpy as np
 PAIRS = ((0, 0), (1, 1), (2, 2), (1, 2), (0, 2), (0, 1))
 
 
+def length(v: np.ndarray) -> float:
+    """|v|, v first scaled by the power of two that brings its largest entry into [0.5, 1), as
+    hypot scales (np.linalg.norm sums the squares as they are: [1e200, 0, 1e200] has length inf,
+    [3e-162, 0, 0] one bit of it). Exact, so a vector whose squares are normal numbers has the
+    length it had unscaled, to the bit."""
+    v = np.asarray(v, float)
+    largest = float(np.abs(v).max(initial=0.0))
+    if largest == 0.0 or not np.isfinite(largest):
+        return largest
+    exponent = int(np.frexp(largest)[1])
+    return float(np.ldexp(np.linalg.norm(np.ldexp(v, -exponent)), exponent))
+
+
+def unit(v: np.ndarray) -> np.ndarray:
+    """v / |v|, scaled first as length() is, so that neither overflows nor underflows."""
+    v = np.asarray(v, float)
+    exponent = int(np.frexp(float(np.abs(v).max()))[1])
+    scaled = np.ldexp(v, -exponent)
+    return scaled / np.linalg.norm(scaled)
+
+
 def rotation(n: np.ndarray) -> np.ndarray:
     """R with R e3 = n: column k is material axis k in the scene's axes."""
-    n = np.asarray(n, float) / np.linalg.norm(n)
+    n = unit(n)
     axis = np.cross([0.0, 0.0, 1.0], n)
-    sine, cosine = float(np.linalg.norm(axis)), float(n[2])
+    sine, cosine = length(axis), float(n[2])
     if sine == 0.0:  # along e3: nothing to turn, or against it: the half turn about axis 2
         return np.diag([1.0, 1.0, 1.0]) if cosine > 0 else np.diag([-1.0, 1.0, -1.0])
     a = axis / sine

@@ -5,7 +5,10 @@ from __future__ import annotations
 import shutil
 from pathlib import Path
 
+import pytest
+
 from harness.cli import main
+from harness.core.contract import ExitCode
 
 ROOT = Path(__file__).parents[1]
 PAPER = ROOT / "cases" / "paper.toml"
@@ -50,3 +53,47 @@ def test_missing_mesh_is_a_clear_solver_failure(tmp_path):
     log = (out / "stdout.txt").read_text() + (out / "stderr.txt").read_text()
     reason = failure_reason(outcome, 60, error_detail(log))
     assert "nope.msh" in reason or "error" in reason.lower(), reason
+
+
+def symlink_loop(folder: Path, name: str) -> Path:
+    """`name` in `folder`, a symbolic link to a link that points back to it."""
+    (folder / f"{name}.other").symlink_to(name)
+    (folder / name).symlink_to(f"{name}.other")
+    return folder / name
+
+
+def case_beside(tmp: Path, source: Path, old: str, new: str) -> Path:
+    """`source` copied into `tmp` with `old` replaced by `new`."""
+    text = source.read_text()
+    assert old in text
+    case = tmp / source.name
+    case.write_text(text.replace(old, new, 1))
+    return case
+
+
+@pytest.mark.parametrize("key", ["scene.material", "scene.materials.lower", "geometry.file"])
+def test_a_loop_of_symbolic_links_in_a_case_files_path_is_one_line_and_exit_2(tmp_path, capsys, key):
+    """A path of the case file that is a loop of links (Python 3.11's pathlib raises RuntimeError
+    for it): one line naming the case file and the key, exit 2. Before, a traceback, exit 1."""
+    loop = symlink_loop(tmp_path, "loop.idp" if key != "geometry.file" else "loop.geo")
+    if key == "scene.material":
+        case = case_beside(tmp_path, PAPER, 'material = "BaTiO3"', 'material = "loop.idp"')
+    elif key == "scene.materials.lower":
+        case = case_beside(tmp_path, ROOT / "tests" / "data" / "bilayer_rect.toml",
+                           'lower = "Brass"', 'lower = "loop.idp"')
+    else:
+        case = case_beside(tmp_path, ROOT / "cases" / "paper_gmsh.toml",
+                           'file = "geo/paper.geo"', f'file = "{loop.name}"')
+    code = main(["solve", str(case), "--n", "2", "--results", str(tmp_path / "results")])
+    err = capsys.readouterr().err.strip().splitlines()
+    assert code == ExitCode.INPUT == 2
+    assert len(err) == 1 and err[0].startswith(f"error: {case}: {key} = ") and "loop of symbolic links" in err[0], err
+    assert not (tmp_path / "results").exists()
+
+
+def test_a_loop_of_symbolic_links_as_the_results_folder_is_one_line(tmp_path, capsys):
+    loop = symlink_loop(tmp_path, "results")
+    code = main(["solve", str(PAPER), "--n", "2", "--results", str(loop / "sub")])
+    err = capsys.readouterr().err.strip().splitlines()
+    assert code == ExitCode.ENVIRONMENT == 4
+    assert len(err) == 1 and err[0].startswith("error:") and "loop of symbolic links" in err[0], err

@@ -5,8 +5,10 @@ a copy of the template is picked up by name."""
 
 from __future__ import annotations
 
+import os
 import re
 import shutil
+import tempfile
 from pathlib import Path
 
 import numpy as np
@@ -296,3 +298,92 @@ def test_the_contact_reading_sets_the_balance_floors():
     assert low["charge"] == pytest.approx(EPS * 10.0 / 1e-8, rel=1e-15)
     assert low["heat"] == pytest.approx(EPS * 1000.0 / 1e-8, rel=1e-15)
     assert floors({}, 2.0)["charge"] == NOTHING_FLOWS
+
+
+def alumina_with_beta_in(folder: Path, include: str) -> tuple[Path, Path]:
+    """Alumina.idp as Layered.idp in `folder`, its permittivity moved into the file `include`
+    names (relative to `folder`, or absolute), which includes the next file down, itself
+    holding the value: the material file, and the file that holds beta."""
+    text = (FREEFEM / "materials" / "Alumina.idp").read_text().replace('materialName = "Alumina"',
+                                                                      'materialName = "Layered"')
+    beta = re.search(r"macro materialBeta .*?//", text, re.DOTALL)
+    assert beta
+    middle = Path(include) if Path(include).is_absolute() else folder / include
+    middle.parent.mkdir(parents=True, exist_ok=True)
+    # Included by an absolute name: FreeFEM 4.9 looks a relative name up next to its includer
+    # only in a file included by an absolute name (harness/scene/materials.py included_files).
+    (middle.parent / "beta.idp").write_text(beta.group(0) + "\n")
+    middle.write_text(f'// the permittivity, one file down\ninclude "{middle.parent / "beta.idp"}"\n')
+    material = folder / "Layered.idp"
+    folder.mkdir(parents=True, exist_ok=True)
+    material.write_text(text.replace(beta.group(0), f'include "{include}"'))
+    return material, middle.parent / "beta.idp"
+
+
+@pytest.mark.parametrize("include", ["sub/permittivity.idp", "absolute"])
+def test_a_file_a_material_includes_is_in_the_runs_key(tmp_path, capsys, include):
+    """The alumina capacitor (tests/data/layer.toml) with beta two includes down: doubling beta
+    in that file reruns the level (its charge doubles, the parallel plate's beta V w / t), where
+    the cache served the old level. Unchanged, the level is reused."""
+    given = str(tmp_path / "elsewhere" / "permittivity.idp") if include == "absolute" else include
+    material, beta = alumina_with_beta_in(tmp_path / "mine", given)
+
+    def charge() -> tuple[float, bool]:
+        code = main(["solve", str(LAYER), "--n", "2", "--results", str(tmp_path / "results"),
+                     "--set", f"scene.material={material}", "--set", "scene.name=layered"])
+        assert code == 0
+        reused = "[reused]" in capsys.readouterr().out
+        return read_run_json(tmp_path / "results" / "layered" / "n2").checks["electrode_charge"], reused
+
+    first, reused = charge()
+    assert first == pytest.approx(ALUMINA_BETA * 100.0 * 2.0, rel=1e-10) and not reused
+    assert charge() == (first, True)
+    assert beta.read_text().count("7.703143e-11") == 3
+    beta.write_text(beta.read_text().replace("7.703143e-11", "15.406286e-11"))
+    second, reused = charge()
+    assert not reused
+    assert second == pytest.approx(2 * first, rel=1e-10)  # round-off of the linear solve, as above
+
+
+# A material file that ends FreeFEM, or never ends: FreeFEM reads it when the scene's constants
+# are asked for (harness/scene/material_constants.py), before anything is meshed.
+RUNAWAY = {
+    "exit(0)": ("exit(0);", "ended before it printed the constants, with exit code 0 (does the file call exit?)"),
+    "a loop": ("while (1) { int i = 0; }", "timed out after 2 s"),
+    "a syntax error": ("real x = ;", "FreeFEM compile error"),
+}
+
+
+@pytest.mark.parametrize("case", RUNAWAY)
+def test_a_material_file_that_ends_freefem_or_loops_is_bad_input_named(case, tmp_path, capsys, monkeypatch):
+    """One line naming the file, exit 2 (bad input: the file is the user's), and the timeout
+    when it loops; nothing meshed, no FreeFEM left running. Before, exit 3 (a failed run) for
+    each, without the timeout."""
+    from harness.scene import material_constants
+
+    monkeypatch.setattr(material_constants, "READ_TIMEOUT_S", 2.0)  # 60 s in earnest
+    scratch = tmp_path / "tmp"  # where FreeFEM runs on the file: this test's own temp dirs
+    scratch.mkdir()
+    monkeypatch.setattr(tempfile, "tempdir", str(scratch))
+    line, message = RUNAWAY[case]
+    path = variant(tmp_path, "Runaway")
+    path.write_text(path.read_text() + f"\n{line}\n")
+    code = main(["solve", str(case_with_material(tmp_path, "Runaway.idp")), "--n", "4",
+                 "--results", str(tmp_path / "results")])
+    err = capsys.readouterr().err.strip().splitlines()
+    assert code == 2
+    assert len(err) == 1 and err[0].startswith(f"error: invalid material file {path}: ") and message in err[0], err
+    assert not (tmp_path / "results").exists()
+    assert not any(scratch.iterdir())  # its temp dir removed
+    assert not [cwd for cwd in process_dirs() if cwd.is_relative_to(scratch)]  # and no FreeFEM left in it
+
+
+def process_dirs() -> list[Path]:
+    """The working directory of every process this user can see."""
+    out = []
+    for proc in Path("/proc").glob("[0-9]*"):
+        try:
+            out.append(Path(os.readlink(proc / "cwd")))
+        except OSError:  # ended meanwhile, or not ours
+            continue
+    return out

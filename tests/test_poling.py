@@ -7,6 +7,7 @@ and its poling turned together give the turned solution; the default axis change
 
 from __future__ import annotations
 
+import importlib.util
 import math
 import tempfile
 from pathlib import Path
@@ -88,6 +89,10 @@ AXES = {
     "3D along x": (1.0, 0.0, 0.0),
     "3D opposite": (0.0, 0.0, -1.0),
     "3D near the opposite": (1e-9, 0.0, -math.sqrt(1 - 1e-18)),
+    # Off the opposite by components whose squares are subnormal: summed as they are, n1^2 + n2^2
+    # kept one bit of each, and R was not a rotation (R(0, 1) = -1, R(0, 0) = -1).
+    "3D a subnormal way off the opposite": (3e-162, 1e-162, -1.0),
+    "3D a subnormal way off the default": (3e-162, -1e-162, 1.0),
     "2D oblique": (0.6, 0.8),
     "2D along x": (1.0, 0.0),
     "2D opposite": (0.0, -1.0),
@@ -123,6 +128,63 @@ def test_a_poling_axis_is_a_signed_name_or_a_vector():
     assert parse_poling([3.0, 4.0], 2).axis == pytest.approx((0.6, 0.8))
     assert parse_poling("-y", 2).macros() == {"polingX": "0.0", "polingY": "-1.0"}
     assert parse_poling("z", 3).macros() == {}
+
+
+@pytest.mark.parametrize("given, same_as", [
+    ([3e-162, 0.0], [1.0, 0.0]),           # its square keeps one bit: it was the axis (0.95, 0)
+    ([1e200, 1e200], [1.0, 1.0]),          # its square is inf: it was the axis (0, 0)
+    ([1e-320, -1e-320], [1.0, -1.0]),      # subnormal entries
+    ([1e300, -2e300, 5e299], [1.0, -2.0, 0.5]),
+    ([0.0, 0.0, 5e-324], [0.0, 0.0, 1.0]),  # the smallest double: the default axis
+])
+def test_a_poling_axis_of_any_finite_size_is_scaled_before_its_length_is_taken(given, same_as):
+    """The axis is scaled by a power of two before its squares are summed, as hypot does; a
+    vector whose squares are normal numbers gives the doubles it gave before (checked on every
+    vector of the case files and tests, harness/scene/poling.py unit)."""
+    axis, want = parse_poling(given, len(given)).axis, parse_poling(same_as, len(same_as)).axis
+    assert axis == pytest.approx(want, abs=2.0 ** -52)  # one ulp of the rounded division
+    assert math.fsum(x * x for x in axis) == pytest.approx(1.0, abs=4 * 2.0 ** -52)
+    assert parse_poling([3e-162, 0.0], 2).axis == (1.0, 0.0) and parse_poling([0.0, 2.0], 2).is_default
+
+
+def peer_rotation():  # noqa: ANN201 (a module)
+    """peer_getfem/rotation.py, the GetFEM peer's own rotation (numpy only), imported by its path."""
+    path = Path(__file__).parents[1] / "peer_getfem" / "rotation.py"
+    spec = importlib.util.spec_from_file_location("peer_rotation", path)
+    module = importlib.util.module_from_spec(spec)
+    spec.loader.exec_module(module)
+    return module
+
+
+@pytest.mark.parametrize("given, same_as", [
+    ((1e200, 0.0, 1e200), (1.0, 0.0, 1.0)),
+    ((3e-162, 0.0, 0.0), (1.0, 0.0, 0.0)),
+    ((3e-162, 1e-162, -1.0), None),  # off the opposite by a subnormal amount: the axis (3, 1, 0) turns it
+])
+def test_the_peers_rotation_scales_the_axis_before_its_length_is_taken(given, same_as):
+    rotation = peer_rotation().rotation
+    R = rotation(np.array(given))
+    assert R.T @ R == pytest.approx(np.eye(3), abs=1e-15) and np.linalg.det(R) == pytest.approx(1.0, abs=1e-15)
+    if same_as is None:
+        assert R[:, 2] == pytest.approx(given, abs=1e-15)
+        # The half turn about the unit vector along 3 x n = (-1, 3, 0)/sqrt(10): R = 2 a a^T - I.
+        a = np.array([-1.0, 3.0, 0.0]) / math.sqrt(10.0)
+        assert R == pytest.approx(2.0 * np.outer(a, a) - np.eye(3), abs=1e-15)
+    else:
+        assert np.array_equal(R, rotation(np.array(same_as)))
+
+
+@pytest.mark.parametrize("given, same_as", [("[1e200, 1e200]", "[1.0, 1.0]"), ("[3e-162, 0.0]", '"x"')])
+def test_a_huge_or_tiny_poling_axis_solves_as_its_direction(tmp_path, given, same_as):
+    """The PZT-5H layer between electrodes (tests/data/layer.toml) poled along an axis of 1e200
+    or 3e-162: the solution of its direction. Before, [1e200, 1e200] was refused as a material
+    that is not positive definite (exit 2), and [3e-162, 0] poled along (0.95, 0) (exit 0)."""
+    states = [solve(DATA / "layer.toml", 2, tmp_path / name, f"scene.poling_axis={axis}")
+              for name, axis in (("given", given), ("direction", same_as))]
+    for a, b in zip(*states):
+        # The same axis to the last bit or to one ulp: the same solve (measured identical).
+        assert a == pytest.approx(b, abs=1e-12 * max(np.abs(b).max(), 1e-300))
+    assert np.abs(states[0][1]).max() > 1.0  # phi: the electrodes' 100 V
 
 
 @pytest.mark.parametrize("value, message", [

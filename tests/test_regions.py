@@ -20,6 +20,8 @@ from harness.core.contract import ExitCode
 from harness.measure.fields import read_state
 from physics_runs import CASES, DATA, solve
 
+LIBRARY = Path(__file__).parents[1] / "freefem" / "materials"
+
 # freefem/materials/Brass.idp (isotropic) and PZT-5H.idp: C33 and C13 [Pa].
 C33 = {"Brass": 155.25e9, "PZT-5H": 11.7e10}
 C13 = {"Brass": 69.75e9, "PZT-5H": 8.41e10}
@@ -251,6 +253,77 @@ def test_the_rectangles_two_blocks_are_the_two_layers_drawn_in_gmsh(tmp_path, n,
     assert u_rect[order_rect] == pytest.approx(u_gmsh[order_gmsh], abs=1e-10 * scale)
 
 
+def brass_named(path: Path, name: str, stiffer: bool = False) -> Path:
+    """freefem/materials/Brass.idp as the material file `path` named `name` (its C11 = C22 = C33
+    raised by 100 GPa when `stiffer`: another answer, to tell the two files apart)."""
+    text = (LIBRARY / "Brass.idp").read_text().replace('materialName = "Brass"', f'materialName = "{name}"')
+    if stiffer:
+        assert text.count("155.25e9") == 3
+        text = text.replace("155.25e9", "255.25e9")
+    path.parent.mkdir(parents=True, exist_ok=True)
+    path.write_text(text)
+    return path
+
+
+def bilayer_rect_with(case: Path, lower: str) -> Path:
+    """tests/data/bilayer_rect.toml as `case`, its lower block of the material `lower` (or the
+    region's table, when `lower` is one: `{material = ...}`)."""
+    text = (DATA / "bilayer_rect.toml").read_text()
+    assert 'lower = "Brass"\n' in text
+    case.parent.mkdir(parents=True, exist_ok=True)
+    entry = lower if lower.startswith("{") else f'"{lower}"'
+    case.write_text(text.replace('lower = "Brass"\n', f"lower = {entry}\n", 1))
+    return case
+
+
+def assert_brass_under_pzt(run, n: int, results: Path) -> None:
+    """The known answer of two layers in series, brass below, PZT-5H above."""
+    u = read_state(results / "bilayer_rect" / f"n{n}" / "state.txt")[0].reshape(-1, 2)
+    exact = layers_exact(grid(run.fields.points[:, 1], n), "Brass", "PZT-5H")
+    # Round-off only, as the blocks' test above (measured 6.8e-16 of max |u_y|).
+    assert u[:, 1] == pytest.approx(exact, abs=1e-10 * np.abs(exact).max())
+
+
+def test_a_regions_material_file_is_the_one_beside_the_case_file_not_the_one_where_it_runs(tmp_path, monkeypatch):
+    """`lower = "Soft.idp"` is the Soft.idp beside the case file, as `scene.material` and a .geo
+    are; a Soft.idp in the folder the run starts from (stiffer here) is not read. Before, it
+    was: a wrong answer with exit 0. run.json records each region's file."""
+    case = bilayer_rect_with(tmp_path / "case" / "bilayer_rect.toml", "Soft.idp")
+    beside = brass_named(tmp_path / "case" / "Soft.idp", "Soft")
+    brass_named(tmp_path / "elsewhere" / "Soft.idp", "Soft", stiffer=True)
+    monkeypatch.chdir(tmp_path / "elsewhere")
+    run = solve(case, 2, tmp_path / "results")
+    assert_brass_under_pzt(run, 2, tmp_path / "results")
+    pzt = LIBRARY / "PZT-5H.idp"
+    assert run.record.regions == [{"name": "lower", "material": "Soft", "file": str(beside.resolve())},
+                                  {"name": "upper", "material": "PZT-5H", "file": str(pzt.resolve())}]
+
+
+@pytest.mark.parametrize("given", ["../materials/Soft.idp", "absolute", '{material = "../materials/Soft.idp"}'])
+def test_a_regions_material_may_be_a_path_relative_to_the_case_file_or_absolute(tmp_path, given):
+    """A region's own material file by a path, as `scene.material` takes one (docs/materials.md);
+    before, a path was refused ("must be a material name")."""
+    soft = brass_named(tmp_path / "materials" / "Soft.idp", "Soft")
+    case = bilayer_rect_with(tmp_path / "case" / "bilayer_rect.toml", str(soft) if given == "absolute" else given)
+    run = solve(case, 2, tmp_path / "results")
+    assert_brass_under_pzt(run, 2, tmp_path / "results")
+    assert run.record.regions[0] == {"name": "lower", "material": "Soft", "file": str(soft.resolve())}
+
+
+@pytest.mark.parametrize("given, message", [
+    ("../materials/Missing.idp", "unknown material"),
+    ("../materials/Soft", "must be a material name or a path to a .idp file"),
+])
+def test_a_bad_region_material_path_is_one_line_naming_the_case_file(tmp_path, capsys, given, message):
+    brass_named(tmp_path / "materials" / "Soft.idp", "Soft")
+    case = bilayer_rect_with(tmp_path / "case" / "bilayer_rect.toml", given)
+    code = main(["solve", str(case), "--n", "2", "--results", str(tmp_path / "results")])
+    err = capsys.readouterr().err.strip().splitlines()
+    assert code == ExitCode.INPUT == 2
+    assert len(err) == 1 and err[0].startswith(f"error: {case}") and message in err[0], err
+    assert not (tmp_path / "results" / "bilayer_rect" / "n2").exists()
+
+
 @pytest.mark.parametrize("n", [2, 4])
 def test_the_boxs_two_blocks_are_two_layers_in_series(tmp_path, n):
     """[geometry.blocks] on the box (tests/data/bilayer_box.toml), the known answer of
@@ -311,6 +384,16 @@ def test_a_block_off_the_levels_grid_is_named(tmp_path, capsys):
     code = main(["solve", str(DATA / "bilayer_rect.toml"), "--n", "3", "--results", str(tmp_path)])
     err = capsys.readouterr().err.strip().splitlines()
     assert code == ExitCode.INPUT and len(err) == 1 and "block 'lower' has a side at 0.5, not a multiple of h = 1/3" in err[0], err
+    # Refused before anything is meshed, naming the case file (it named only the level and block).
+    assert err[0].startswith(f"error: {DATA / 'bilayer_rect.toml'}: n=3: block 'lower'"), err
+    assert not (tmp_path / "bilayer_rect").exists()
+
+
+def test_blocks_off_the_grid_of_the_boxs_unstructured_mesh_are_not_refused(tmp_path):
+    """gmsh cuts the box's unstructured tetrahedra along the blocks' faces: the guard that names
+    an off-grid block (before meshing) asks what the mesher asks, so n = 3 runs."""
+    run = solve(DATA / "bilayer_box.toml", 3, tmp_path, 'geometry.diagonals="unstructured"')
+    assert run.record.converged is True
 
 
 # PZT-5H's beta33 [C/(V m)] (freefem/materials/PZT-5H.idp).

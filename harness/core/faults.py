@@ -145,6 +145,21 @@ def guarded(body: Callable[[], int], where: str = "") -> int:
         return report(str(fault(exc, where)), ExitCode.ENVIRONMENT)
     except MemoryError:
         return report("out of memory", ExitCode.ENVIRONMENT)
+    except RuntimeError as exc:
+        loop = symlink_loop(exc)
+        if loop is None:
+            raise
+        return report(f"{loop}: a loop of symbolic links", ExitCode.ENVIRONMENT)
+
+
+def symlink_loop(exc: RuntimeError) -> str | None:
+    """The path of Python 3.11's pathlib error for a loop of symbolic links (Path.resolve), which
+    is a RuntimeError, not an OSError; None for any other RuntimeError. A path of a case file is
+    named as such when the scene loads (harness/core/layout.py case_path), exit 2; this is the one
+    line for any other, a results folder for instance."""
+    text = str(exc)
+    prefix = "Symlink loop from "
+    return text.removeprefix(prefix).strip("'\"") if text.startswith(prefix) else None
 
 
 def report(message: str, code: ExitCode) -> int:

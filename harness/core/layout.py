@@ -5,13 +5,26 @@ from __future__ import annotations
 from dataclasses import dataclass, field
 from pathlib import Path
 
-REPO = Path(__file__).resolve().parents[2]
+from harness.core.errors import SceneError
 
+REPO = Path(__file__).resolve().parents[2]
 
 
 def is_material_path(material: str) -> bool:
     """`scene.material` names a file (it has a folder or the .idp suffix), not a library name."""
     return "/" in material or material.endswith(".idp")
+
+
+def case_path(case_dir: Path, given: str, key: str) -> Path:
+    """A path a case file gives (`key`: a material file, a .geo), relative to the case file's
+    folder or absolute, as an absolute path with its links followed. A loop of symbolic links
+    is a SceneError naming the key: Python 3.11's pathlib raises RuntimeError for it (3.13
+    follows the loop no further, and the file's read then fails with ELOOP)."""
+    try:
+        return (case_dir / given).resolve()
+    except RuntimeError:
+        raise SceneError(f"{key} = {given!r}: a loop of symbolic links, not a file") from None
+
 
 def results_root() -> Path:
     """`./results` under the working directory: a study writes where its user stands, not

@@ -26,7 +26,7 @@ from harness.mesh.jitter import Jitter, jittered
 from harness.mesh.mesh_check import MeshSummary, check_arrays
 from harness.mesh.msh import AS_GMSH, AS_GRADED, AS_MESHIO, MshStyle, msh_text, write_msh
 from harness.mesh.simplex import SimplexMesh, quality, quality_warning, role_measures
-from harness.scene.blocks import block_labels, check_on_grid
+from harness.scene.blocks import Block, block_labels, check_on_grid
 from harness.scene.box import Box
 from harness.scene.gmsh_geometry import GmshGeometry
 from harness.scene.segments import Geometry
@@ -89,8 +89,7 @@ def checked_level(geometry: Geometry | Box | GmshGeometry, n: int,
     the file took 41 % of the finest rectangle's time at n = 64), its summary (path left
     empty) and the style its file has always had (harness/mesh/msh.py)."""
     if isinstance(geometry, Box):
-        if geometry.diagonals != "unstructured":  # gmsh's tetrahedra follow the blocks' faces (Box.cuts)
-            check_on_grid(geometry.blocks, n)
+        check_on_grid(on_grid_blocks(geometry), n)
         level = with_regions(box_mesh.generate(geometry, n), geometry)
         areas = check_role_areas(level, geometry, n)
         return level, MeshSummary(Path(), n, len(level.points), len(level.cells), areas), AS_MESHIO
@@ -104,9 +103,18 @@ def checked_level(geometry: Geometry | Box | GmshGeometry, n: int,
                   "Mesh.OptimizeNetgen)", file=sys.stderr, flush=True)
         summary = MeshSummary(Path(), n, len(level.points), len(level.cells), role_measures(level), measured)
         return level, summary, AS_MESHIO
-    check_on_grid(geometry.blocks, n)
+    check_on_grid(on_grid_blocks(geometry), n)
     level = with_regions(rectangle_mesh.generate(geometry, n), geometry)
     return level, check_arrays(level.points, level.cells, level.facets, level.labels, geometry, n), AS_GMSH
+
+
+def on_grid_blocks(geometry: Geometry | Box | GmshGeometry) -> tuple[Block, ...]:
+    """The blocks whose sides every level's grid must hold: a structured rectangle's or box's
+    (their cells take the block of their centroid); none of the box's unstructured tetrahedra,
+    which gmsh cuts along the blocks' faces (Box.cuts), nor of a gmsh scene."""
+    if isinstance(geometry, GmshGeometry) or getattr(geometry, "diagonals", "") == "unstructured":
+        return ()
+    return tuple(geometry.blocks)
 
 
 def with_regions(level: SimplexMesh, geometry: Geometry | Box) -> SimplexMesh:

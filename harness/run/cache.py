@@ -1,11 +1,11 @@
 """The content key of one run, and the checksums of its outputs.
 
 The key covers everything that decides a result: the generated main.edp and FreeFEM's
-options, the harness code that writes them, the solver sources and the one material file
-the scene uses, the mesh, the scene values, the start (a coarser level by *its* key, so
-that round-off differences between identical runs do not invalidate the levels above)
-and the FreeFEM version. A cached level is reused only when its key matches and every
-output still has the checksum it was written with."""
+options, the harness code that writes them, the solver sources, the material file the scene
+uses and every file its materials include (recursively), the mesh, the scene values, the
+start (a coarser level by *its* key, so that round-off differences between identical runs
+do not invalidate the levels above) and the FreeFEM version. A cached level is reused only
+when its key matches and every output still has the checksum it was written with."""
 
 from __future__ import annotations
 
@@ -13,6 +13,7 @@ import functools
 import hashlib
 import importlib.util
 import json
+import os
 import sys
 from pathlib import Path
 from typing import Any
@@ -55,18 +56,29 @@ def source_sha256(path: Path) -> str:
     return _source_sha256(str(path), stat.st_mtime_ns, stat.st_size)
 
 
-def source_digests(freefem_dir: Path, material: Path | None = None) -> dict[str, str]:
+def source_digests(freefem_dir: Path, material: Path | None = None,
+                   included: tuple[Path, ...] = ()) -> dict[str, str]:
     """Every .idp/.edp under freefem/ by relative path, except the materials: of those only
-    `material`, the one the scene uses (adding or editing another invalidates nothing)."""
+    `material`, the one the scene uses (adding or editing another invalidates nothing), and
+    the files its materials include (`included`, harness/scene/materials.py included_files)."""
     materials = freefem_dir / "materials"
     files = sorted(p for p in freefem_dir.rglob("*")
                    if p.suffix in (".idp", ".edp") and p.is_file() and materials not in p.parents)
     digests = {str(p.relative_to(freefem_dir)): source_sha256(p) for p in files}
     if material is not None:  # a library material by its path in freefem/, a user's own by its name
-        inside = material.resolve().is_relative_to(freefem_dir.resolve())
-        name = str(material.resolve().relative_to(freefem_dir.resolve())) if inside else f"<material>/{material.name}"
-        digests[name] = source_sha256(material)
+        digests[source_name(material, freefem_dir, material.resolve().parent)] = source_sha256(material)
+        for path in included:  # by its path beside the material's, so that two of one name stay two
+            digests[source_name(path, freefem_dir, material.resolve().parent)] = source_sha256(path)
     return digests
+
+
+def source_name(path: Path, freefem_dir: Path, beside: Path) -> str:
+    """A keyed file's name: its path in freefem/, or outside it `<material>/` and its path from
+    the folder `beside` (the scene's material file's), so the key does not hold where a clone lives."""
+    path = path.resolve()
+    if path.is_relative_to(freefem_dir.resolve()):
+        return str(path.relative_to(freefem_dir.resolve()))
+    return f"<material>/{os.path.relpath(path, beside)}"
 
 
 def code_digests(modules: tuple[str, ...] = INPUT_WRITERS) -> dict[str, str]:
@@ -88,14 +100,15 @@ def portable(text: str, freefem_dir: Path) -> str:
 
 
 def run_inputs(mesh: Path, scene: dict[str, Any], freefem_dir: Path, version: str, n: int,
-               script: str = "", options: tuple[str, ...] = (), material: Path | None = None) -> dict[str, Any]:
+               script: str = "", options: tuple[str, ...] = (), material: Path | None = None,
+               included: tuple[Path, ...] = ()) -> dict[str, Any]:
     inputs = {
         "n": n,
         "mesh_sha256": sha256_file(mesh),
         "scene": scene,
         "main_edp_sha256": sha256_bytes(portable(script, freefem_dir).encode()),
         "options": list(options),
-        "sources": source_digests(freefem_dir, material),
+        "sources": source_digests(freefem_dir, material, included),
         "harness_code": code_digests(),
         "freefem_version": version,
     }

@@ -24,6 +24,7 @@ from harness.run.cache import run_inputs, sha256_file
 from harness.run.script import main_script
 from harness.scene.floating import floating_macros
 from harness.scene.gmsh_geometry import GmshGeometry
+from harness.scene.materials import included_files
 from harness.scene.regions import region_definitions
 from harness.scene.scene import Scene
 
@@ -134,8 +135,12 @@ def make_plan(scene: Scene, mesh: Path, n: int, layout: Layout, warm: WarmStart 
         described["start_key"] = start.key
     elif start:
         described["start_state_sha256"] = sha256_file(start.state)
+    files = [layout.material_file(m) for m in dict.fromkeys([scene.material, *(r.material for r in scene.regions)])]
+    # main.edp includes the first material and holds the regions' constants, which FreeFEM
+    # printed from each region's file and what it includes: every such file is keyed.
+    included = tuple(dict.fromkeys(p for f in files for p in included_files(f)))
     inputs = run_inputs(mesh, described, layout.freefem, freefem.freefem_version(), n,
-                        main.script, main.keyed_options, layout.material_file(scene.material))
+                        main.script, main.keyed_options, files[0], included)
     return RunPlan(scene, n, mesh, guess, start, main, post, inputs)
 
 

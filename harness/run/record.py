@@ -121,6 +121,8 @@ class RunRecord:
     peak_rss_source: str | None = None
     started_from: str | None = None
     warnings: list[str] | None = None  # what the harness warns of this run (harness/run/tresca.py)
+    # each material region (in the mesh's label order): its name, its material and the file read for it
+    regions: list[dict[str, str]] | None = None
     # -- a run on MPI ranks (run.ranks > 1; freefem/ranks_record.idp): the ranks,
     # freefem/parallel_output.idp's figures, and the sequential pass's own peak and residuals
     ranks: int | None = None
@@ -163,7 +165,7 @@ RENAMED_KEYS = {"active_length": "active_measure"}
 KEYS = frozenset(f.name for f in dataclasses.fields(RunRecord))
 # What output.idp writes on every converged run (the rest depends on the scene).
 ALWAYS_WRITTEN = ("n", "converged", "reason", "newton_iterations", "dofs", "fields")
-HARNESS_KEYS = ("wall_s", "pipelined", "waited_s", "peak_rss_source", "started_from", "warnings")
+HARNESS_KEYS = ("wall_s", "pipelined", "waited_s", "peak_rss_source", "started_from", "warnings", "regions")
 
 
 def renamed(data: dict[str, Any]) -> dict[str, Any]:

@@ -266,6 +266,10 @@ def collect(
                           peak_rss_mb=record.peak_rss_mb if own else outcome.peak_rss_mb,
                           initial_guess=scene.initial_guess,
                           started_from=guess if not start else f"file {start.state}")
+    if scene.regions:  # FreeFEM's `material` names the first region's only
+        files = [layout.material_file(r.material) for r in scene.regions]
+        record = record.with_(regions=[{"name": r.name, "material": f.stem, "file": str(f.resolve())}
+                                       for r, f in zip(scene.regions, files)])
     grip = grip_warning(scene, record)
     if grip:
         record = record.with_(warnings=[grip])

@@ -25,6 +25,7 @@ from harness.scene.cell_size import Body
 from harness.scene.electrodes import Part
 from harness.core.errors import SceneError
 from harness.core.gmsh_api import session
+from harness.core.layout import case_path
 
 LEVEL_KINDS = ("split", "remesh")
 
@@ -163,7 +164,7 @@ def distance_to_facet(points: np.ndarray, corners: np.ndarray, tol: float) -> np
 def parse_gmsh(table: dict[str, Any], case_dir: Path, levels: list[int], effects: list[str]) -> GmshGeometry:
     """Read and check the scene's .geo; `levels` (the study's) gives the default coarsest."""
     dimension = table["dimension"]
-    file = (case_dir / table["file"]).resolve()
+    file = case_path(case_dir, table["file"], "geometry.file")
     if not file.is_file():
         raise SceneError(f"geometry.file: no such file {file}")
     roles = table["roles"]

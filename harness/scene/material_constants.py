@@ -15,6 +15,9 @@ from harness.core.contract import Failure
 from harness.core.errors import RunError, SceneError
 from harness.core.layout import Layout
 
+# How long FreeFEM may take to read a material file and print its constants (measured: well under
+# a second, FreeFEM's start-up included): a file that takes longer loops.
+READ_TIMEOUT_S = 60.0
 # The plane-strain constants material.idp derives (its section 6).
 CONSTANTS = ("f11", "f13", "f33", "f44", "e31", "e33", "e15", "b11", "b33",
              "m11", "m33", "p1", "p3", "k11", "k33")
@@ -54,13 +57,26 @@ def _constants(material_file: str, reduction_file: str, poling: tuple[tuple[str,
     with tempfile.TemporaryDirectory(prefix="ff-material-") as tmp:
         script = Path(tmp) / "constants.edp"
         script.write_text("\n".join(lines) + "\n")
-        outcome = freefem.invoke(freefem.command(script, []), Path(tmp), timeout_s=60)
-        text = (Path(tmp) / "stdout.txt").read_text()
-    if outcome.returncode == Failure.INVALID_MATERIAL.code:  # bad input: material.idp's one line, with the file
-        said = next((line for line in text.splitlines() if line.startswith("error: material ")), "")
-        raise SceneError(f"invalid material file {material_file}: {said.removeprefix('error: ') or 'refused'}")
+        outcome = freefem.invoke(freefem.command(script, []), Path(tmp), timeout_s=READ_TIMEOUT_S)
+        text = (Path(tmp) / "stdout.txt").read_text(errors="replace")
     values = dict(line.split() for line in text.splitlines() if len(line.split()) == 2)
-    if outcome.returncode != 0 or set(names) - set(values):
+    code = outcome.returncode
+    if code == 0 and not set(names) - set(values):
+        return tuple((k, float(values[k])) for k in names)
+    # The script is the material file and material.idp, the harness's own: what stops it is the
+    # material's doing (bad input, exit 2), but a signal from outside (an OOM kill, say).
+    if code is not None and (code < 0 or freefem.shell_signal(code)):
         raise RunError(f"FreeFEM could not print the constants of {material_file}: "
-                       f"{freefem.error_detail(text) or 'missing constants'}")
-    return tuple((k, float(values[k])) for k in names)
+                       f"{freefem.failure_reason(outcome, READ_TIMEOUT_S, '')}", freefem.failure_of(outcome))
+    if code is None:
+        why = (f"FreeFEM did not finish reading it: timed out after {READ_TIMEOUT_S:g} s (a file of constants "
+               "reads in well under a second; does it loop?)")
+    elif code == Failure.INVALID_MATERIAL.code:  # material.idp's one line
+        said = next((line for line in text.splitlines() if line.startswith("error: material ")), "")
+        why = said.removeprefix("error: ") or "refused"
+    elif code == 0:
+        why = "FreeFEM ended before it printed the constants, with exit code 0 (does the file call exit?)"
+    else:
+        reason = freefem.EXIT_REASONS.get(code, f"FreeFEM exited with code {code}")
+        why = f"{reason}: {freefem.error_detail(text) or 'no detail'}"
+    raise SceneError(f"invalid material file {material_file}: {why}")

@@ -36,6 +36,9 @@ NAME = re.compile(r'^\s*string\s+materialName\s*=\s*"([^"]*)"', re.MULTILINE)
 ROW = re.compile(r"\[([^\[\]]*)\]")
 NUMBER_IN = re.compile(r"(?:\d+\.?\d*|\.\d+)(?:[eE][+-]?\d+)?")
 WORD = re.compile(r"[A-Za-z_]\w*")
+# FreeFEM's include statement, and its comments (an include in a comment includes nothing).
+INCLUDE = re.compile(r'^[ \t]*include[ \t]+"([^"]+)"', re.MULTILINE)
+COMMENT = re.compile(r"/\*.*?\*/|//[^\n]*", re.DOTALL)
 
 
 def check(path: Path, layout: Layout) -> None:
@@ -107,3 +110,32 @@ def check_entries(path: Path, name: str, body: str) -> None:
                 where = f"{MATERIAL_MACROS[name]}{i + 1}{j + 1}" if nested else f"{MATERIAL_MACROS[name]}{j + 1}"
                 raise SceneError(f"invalid material file {path}: {name} entry {where} = {entry.strip()} "
                                  "is not a finite number")
+
+
+def included_files(path: Path) -> tuple[Path, ...]:
+    """Every file a material file includes, and every file those include, recursively (each
+    once, resolved; the file itself left out): what a run reads of a material besides the file,
+    so that the cache's key covers it (harness/run/cache.py). A relative name is looked up next
+    to the file that includes it. FreeFEM 4.9 looks there only one level down (a file included
+    by a relative name has its own relative includes looked up in the run's folder, a temp dir,
+    and in FreeFEM's own idp folder, which its version in the key stands for), so this may key
+    a file FreeFEM does not read: that costs a rerun, never a stale result. A name found nowhere
+    (FreeFEM's own idp files, or a missing file FreeFEM will name) is left out."""
+    own = path.resolve()
+    found: dict[Path, None] = {}
+    todo = [own]
+    while todo:
+        current = todo.pop()
+        try:
+            text = COMMENT.sub("", current.read_text(errors="replace"))
+        except OSError:
+            continue
+        for name in INCLUDE.findall(text):
+            try:
+                candidate = (current.parent / name).resolve()  # an absolute name stays itself
+            except RuntimeError:  # a loop of symbolic links (Python < 3.13): FreeFEM cannot open it either
+                continue
+            if candidate != own and candidate not in found and candidate.is_file():
+                found[candidate] = None
+                todo.append(candidate)
+    return tuple(found)

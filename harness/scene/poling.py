@@ -65,7 +65,18 @@ def parse_poling(value: Any, dimension: int) -> Poling:
                          f"(in 2D the poling lies in the plane of the drawing)")
     if not all(math.isfinite(x) for x in value):
         raise SceneError(f"scene.poling_axis = {value!r} has an entry that is not a finite number")
-    norm = math.sqrt(sum(x * x for x in value))
-    if norm == 0.0:
+    if not any(value):
         raise SceneError(f"scene.poling_axis = {value!r} has zero length (give the direction the material is poled in)")
-    return Poling(tuple(float(x) / norm for x in value))
+    return Poling(unit(tuple(float(x) for x in value)))
+
+
+def unit(vector: tuple[float, ...]) -> tuple[float, ...]:
+    """`vector` / |vector| for any finite nonzero vector. The vector is first scaled by the power
+    of two that brings its largest entry into [0.5, 1), as hypot scales: exact, so every vector
+    whose squares are normal numbers gives the very doubles it gave unscaled, and none overflows
+    ([1e200, 1e200] squared is inf) or loses its digits in the subnormals ([3e-162, 0] squared
+    keeps one bit: it gave the axis (0.95, 0))."""
+    exponent = math.frexp(max(abs(x) for x in vector))[1]
+    scaled = tuple(math.ldexp(x, -exponent) for x in vector)
+    length = math.hypot(*scaled)
+    return tuple(x / length for x in scaled)

@@ -14,16 +14,17 @@ them; the law reads them through material.idp's `mat(...)`.
 from __future__ import annotations
 
 from dataclasses import dataclass
+from pathlib import Path
 from typing import Any, Callable
 
 from harness.core.contract import FLOATING_ROLES
 from harness.core.errors import SceneError
 from harness.scene.floating import check_own_potential
 from harness.scene.gmsh_geometry import GmshGeometry
-from harness.core.layout import Layout
+from harness.core.layout import Layout, case_path, is_material_path
 from harness.scene.material_constants import CONSTANTS, CONSTANTS_3D, ROTATED, material_constants
 from harness.scene.poling import Poling, parse_poling
-from harness.scene.schema import safe_name
+from harness.scene.schema import material_reference
 
 ENTRY_KEYS = ("material", "poling_axis", "conductor")
 # A conductor region is an equipotential at the potential of a role's parts: phi = 0 with the
@@ -128,8 +129,20 @@ def check_entry(name: str, value: Any, dimension: int) -> None:
         except SceneError as exc:
             raise SceneError(f"scene.materials.{name}: {exc}") from None
         value = value["material"]
-    if not isinstance(value, str) or safe_name(value):
-        raise SceneError(f"scene.materials.{name} = {value!r} must be a material name (letters, digits, - _ .)")
+    complaint = material_reference(value) if isinstance(value, str) and value else "must be a material name"
+    if complaint:
+        raise SceneError(f"scene.materials.{name} = {value!r} {complaint}")
+
+
+def with_paths_resolved(materials: dict[str, Any], case_dir: Path) -> dict[str, Any]:
+    """[scene.materials] with each material given as a path made absolute, relative to the case
+    file's folder (as scene.material and a .geo are), so that no run looks it up in the folder
+    it happens to run from; library names and the rest of each entry as they were."""
+    def resolved(name: str, material: str) -> str:
+        return str(case_path(case_dir, material, f"scene.materials.{name}")) if is_material_path(material) else material
+
+    return {name: resolved(name, entry) if isinstance(entry, str)
+            else {**entry, "material": resolved(name, entry["material"])} for name, entry in materials.items()}
 
 
 def check_conductors(table: dict[str, dict[str, Any]], regions: tuple[Region, ...]) -> None:

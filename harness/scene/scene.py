@@ -13,13 +13,15 @@ from typing import Any, Iterable
 
 from harness.scene.electrodes import check_electrodes
 from harness.core.errors import SceneError
+from harness.core.layout import case_path
 from harness.scene.floating import check_floating
 from harness.scene.linear_solvers import LinearSolver, Memory, solver
 from harness.scene.petsc_options import default_options
 from harness.scene.box import Box, parse_box
 from harness.scene.gmsh_geometry import GmshGeometry, parse_gmsh
 from harness.scene.poling import Poling, default_axis, parse_poling
-from harness.scene.regions import Region, any_rotated, check_conductors, check_regions, regions_of
+from harness.scene.regions import (Region, any_rotated, check_conductors, check_regions, regions_of,
+                                   with_paths_resolved)
 from harness.scene.schema import (EFFECTS, REQUIRED, SCHEMA, SOLVER_SECTIONS, Key, effect_of, geometry_keys,
                             is_material_path, unbounded_keys, unread_by_law)
 from harness.scene.sections import sections_of
@@ -226,13 +228,14 @@ def load_scene(path: Path, overrides: Iterable[str] = ()) -> Scene:
             apply_override(raw, item)
         table, warnings = resolve(raw)
         if is_material_path(table["scene"]["material"]):  # relative to the case file, as a .geo
-            table["scene"]["material"] = str((path.parent / table["scene"]["material"]).resolve())
+            table["scene"]["material"] = str(case_path(path.parent, table["scene"]["material"], "scene.material"))
         geometry = parse_any_geometry(table, path.parent)
         if "piezoelectric" in table["scene"]["effects"]:
             check_electrodes(geometry.parts(), max(geometry.width, geometry.height))
         parse_poling(table["scene"]["poling_axis"], getattr(geometry, "dimension", 2))
         regions = check_regions(table["scene"]["materials"], table["scene"]["material"], geometry)
         if regions:
+            table["scene"]["materials"] = with_paths_resolved(table["scene"]["materials"], path.parent)
             geometry = dataclasses.replace(geometry, regions=regions)
             check_conductors(table, regions_of(table["scene"]["materials"], regions, table["scene"]["poling_axis"],
                                                getattr(geometry, "dimension", 2)))

@@ -25,11 +25,13 @@ from pathlib import Path
 from typing import Callable, Sequence, TypeVar
 
 from harness.core.atomic import StudyTransaction
-from harness.core.errors import VerdictError
+from harness.core.errors import MeshError, SceneError, VerdictError
 from harness.core.faults import check_results_root, naming
 from harness.core.guards import (Slope, check_memory, check_nested, check_not_shallower, check_slope_levels,
                                  geometry_depth, mesh_file_bytes, need_disk)
 from harness.run.launcher import check_level_ranks
+from harness.mesh.mesh import on_grid_blocks
+from harness.scene.blocks import check_on_grid
 from harness.scene.scene import Scene, load_scene
 
 R = TypeVar("R")
@@ -99,6 +101,7 @@ def check_guards(plan: Plan) -> None:
                 if case_dir.name == scene.name:
                     check_not_shallower(case_dir, levels)
         for n in levels:
+            check_blocks_on_grid(scene, n)
             fewer = check_level_ranks(scene, n)
             if fewer:
                 print(f"warning: {fewer}", file=sys.stderr)
@@ -112,6 +115,16 @@ def check_guards(plan: Plan) -> None:
     nearest = next((p for p in [plan.results, *plan.results.parents] if p.is_dir()), None)
     if nearest is not None and mesh_bytes:
         need_disk(nearest, mesh_bytes, "the study's meshes")
+
+
+def check_blocks_on_grid(scene: Scene, n: int) -> None:
+    """The rectangle's or box's blocks on level n's grid, checked before anything is meshed, so
+    that the one line names the case file (the mesh generator, which checks it again, knows only
+    the geometry)."""
+    try:
+        check_on_grid(on_grid_blocks(scene.geometry), n)
+    except MeshError as exc:
+        raise SceneError(f"{scene.source}: {exc}") from None
 
 
 def run_pipeline(plan: Plan, runs: Callable[[], R], report: Callable[[R], object],
