@@ -106,6 +106,9 @@ def test_the_adapt_command_writes_its_tables_and_falls_faster_than_uniform(capsy
     (["--bulk", "0"], ["--bulk", "(0, 1]"]),
     (["--bulk", "1.5"], ["--bulk", "(0, 1]"]),
     (["--steps", "0"], ["--steps"]),
+    # one or two steps leave one in the later half of the steps, over which the rate is fitted
+    (["--steps", "1"], ["--steps", "at least 3"]),
+    (["--steps", "2"], ["--steps", "at least 3"]),
     (["--max-dofs", "-3"], ["--max-dofs"]),
 ])
 def test_bad_arguments_are_one_line_and_exit_2(capsys, tmp_path, argv, words):
@@ -114,6 +117,21 @@ def test_bad_arguments_are_one_line_and_exit_2(capsys, tmp_path, argv, words):
     err = capsys.readouterr().err.strip().splitlines()
     assert stop.value.code == 2
     assert len(err) == 1 and all(w in err[0] for w in words), err
+
+
+def test_a_loop_stopped_by_its_dof_budget_after_one_step_reports_no_slope(capsys, tmp_path):
+    """--max-dofs reached by the first step: one step, no slope of the estimate to fit. The
+    summary says so (null), the band is not judged (a warning line, not a NaN verdict), exit 0."""
+    results = tmp_path / "results"
+    code = main(["adapt", str(PAPER), "--steps", "5", "--max-dofs", "1", "--set", "study.levels=[2, 4]",
+                 "--results", str(results)])
+    captured = capsys.readouterr()
+    assert code == 0, captured.err
+    warnings = [line for line in captured.err.splitlines() if "no slope" in line]
+    assert len(warnings) == 1 and warnings[0].startswith("warning: paper: 1 step(s)") and "not judged" in warnings[0]
+    assert "error:" not in captured.err and "nan" not in captured.out
+    summary = json.loads((results / "adapt" / "paper" / "summary.json").read_text())
+    assert summary["steps"] == 1 and summary["slope_of_estimate"] is None
 
 
 def test_a_case_that_does_not_warm_start_is_refused_up_front(capsys, tmp_path):

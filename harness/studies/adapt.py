@@ -50,10 +50,24 @@ def bulk_fraction(text: str) -> float:
     return value
 
 
+# The fewest steps that give a rate: it is fitted over the later half of the steps, and a
+# line needs two points.
+MIN_STEPS = 3
+
+
+def step_count(text: str) -> int:
+    value = positive_int(text)
+    if value < MIN_STEPS:
+        raise argparse.ArgumentTypeError(f"{text!r} steps give no rate in N: it is fitted over the later half of "
+                                         f"the steps, which needs at least {MIN_STEPS} steps")
+    return value
+
+
 def add_arguments(parser: argparse.ArgumentParser) -> None:
     add_case(parser)
-    parser.add_argument("--steps", type=positive_int, default=12,
-                        help="solves at most, the first on the case's coarsest mesh (default 12)")
+    parser.add_argument("--steps", type=step_count, default=12,
+                        help=f"solves at most, the first on the case's coarsest mesh (at least {MIN_STEPS}: the "
+                             "rate is fitted over the later half of them; default 12)")
     parser.add_argument("--bulk", type=bulk_fraction, default=DEFAULT_BULK,
                         help="Dörfler's fraction: refine the fewest cells that hold this share of the "
                              f"squared estimate (0 < bulk <= 1; 1 refines everything; default {DEFAULT_BULK})")
@@ -157,7 +171,10 @@ def run(args: argparse.Namespace) -> int:
         }
         band = list(scene.sections.study.adaptive_band)
         summary["adaptive_band"] = band
-        summary["slope_of_estimate"] = {f: scene.dimension * v for f, v in summary["rate_in_dofs"]["adaptive_estimate"].items()}
+        # Fewer than two steps in the later half (the loop stopped at --max-dofs or the memory
+        # guard after one or two): no slope, and none to judge.
+        summary["slope_of_estimate"] = None if len(later) < 2 else {
+            f: scene.dimension * v for f, v in summary["rate_in_dofs"]["adaptive_estimate"].items()}
         judged["summary"] = summary
         write_json(summary, out / "summary.json")
         plot_adapt(table, flat, fields, summary, out / "adapt.png")
@@ -166,7 +183,8 @@ def run(args: argparse.Namespace) -> int:
                      "newton_iterations"]].to_string(index=False, float_format=lambda v: f"{v:.4g}"))
         rates = summary["rate_in_dofs"]
         print("rates in N (optimal {:.2f}): adaptive {} (its estimate {}); uniform {}".format(
-            rates["optimal"], *(", ".join(f"{f} {v:.2f}" for f, v in rates[k].items())
+            rates["optimal"], *(", ".join(f"{f} {v:.2f}" if math.isfinite(v) else f"{f} none"
+                                          for f, v in rates[k].items())
                                 for k in ("adaptive", "adaptive_estimate", "uniform"))))
 
     def verdict(result: tuple[Adaptation, dict]) -> str | None:
@@ -183,8 +201,13 @@ def run(args: argparse.Namespace) -> int:
             raise EnvironmentFault(adaptation.refused)
         summary = judged.get("summary") or {}
         band = summary.get("adaptive_band") or []
-        outside = [f"{f} {v:.3f}" for f, v in summary.get("slope_of_estimate", {}).items()
-                   if band and not band[0] <= v <= band[1]]
+        slopes = summary.get("slope_of_estimate")
+        if slopes is None:
+            print(f"warning: {scene.name}: {summary.get('steps')} step(s) give no slope of the estimate (it is fitted "
+                  f"over the later half of the steps, which needs two): [study] adaptive_band {band} is not judged",
+                  file=sys.stderr)
+            slopes = {}
+        outside = [f"{f} {v:.3f}" for f, v in slopes.items() if band and not band[0] <= v <= band[1]]
         if outside:
             return (f"{scene.name}: adaptive slope against N^(-1/{scene.dimension}) outside the band "
                     f"[{band[0]}, {band[1]}]: " + ", ".join(outside))
