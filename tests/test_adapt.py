@@ -134,6 +134,23 @@ def test_a_loop_stopped_by_its_dof_budget_after_one_step_reports_no_slope(capsys
     assert summary["steps"] == 1 and summary["slope_of_estimate"] is None
 
 
+def test_only_the_uniform_levels_coarser_than_the_reference_are_run(tmp_path):
+    """The uniform levels are measured against the adaptive reference, so one at least as fine
+    cannot be: the paper's levels to n = 64 (66,820 unknowns) beside three steps, whose reference
+    has 800, run only n = 2, 4; none finer is meshed or solved."""
+    results = tmp_path / "results"
+    code = main(["adapt", str(PAPER), "--steps", "3", "--set", "study.levels=[2, 4, 8, 16, 32, 64]",
+                 "--set", "study.adaptive_band=[-10.0, 10.0]", "--results", str(results)])
+    assert code == 0
+    reference = json.loads((results / "adapt" / "paper" / "summary.json").read_text())["reference"]["dofs"]
+    assert 340 < reference < 1188  # between the uniform n = 4 and n = 8 (measured 800)
+    assert pd.read_csv(results / "adapt" / "paper" / "uniform.csv")["n"].tolist() == [2, 4]
+    runs = sorted(p.name for p in results.glob("adapt/**/n*") if p.is_dir())
+    meshes = sorted(p.name for p in results.glob("adapt/**/mesh_n*.msh"))
+    assert not {"n8", "n16", "n32", "n64"} & set(runs), runs
+    assert not {"mesh_n8.msh", "mesh_n16.msh", "mesh_n32.msh", "mesh_n64.msh"} & set(meshes), meshes
+
+
 def test_a_case_that_does_not_warm_start_is_refused_up_front(capsys, tmp_path):
     code = main(["adapt", str(PAPER), "--set", 'scene.initial_guess="zero"', "--results", str(tmp_path)])
     err = capsys.readouterr().err.strip().splitlines()

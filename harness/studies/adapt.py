@@ -20,6 +20,7 @@ import argparse
 import math
 import os
 import sys
+from dataclasses import replace
 from pathlib import Path
 
 import numpy as np
@@ -34,9 +35,10 @@ from harness.core.layout import Layout
 from harness.measure.norm_table import FIELD_NAMES, error_label
 from harness.core.errors import EnvironmentFault
 from harness.measure.run_checks import failed_checks, print_checks
-from harness.study.pipeline import Guarded, Plan, run_pipeline, scene_of
+from harness.study.pipeline import Guarded, Plan, check_level_memory, level_dofs, run_pipeline, scene_of
 from harness.measure.rates import slope_fit
 from harness.run.run import check_solver_files
+from harness.scene.scene import Scene
 from harness.core.writers import PRECISE_CSV_FORMAT, write_csv, write_json
 
 
@@ -93,7 +95,9 @@ def run(args: argparse.Namespace) -> int:
     uniform_scene = scene_of(args.case, [*args.overrides, f'scene.name="{scene.name}_uniform"'])
     layout = Layout(results=args.results / "adapt", freefem=args.freefem)
     out = layout.case_dir(scene.name)
-    plan = Plan(layout.results, (Guarded(scene, (scene.levels[0],)), Guarded(uniform_scene)),
+    # The uniform levels are guarded once the reference says which of them are run (the
+    # coarsest here, for its warnings and ranks).
+    plan = Plan(layout.results, (Guarded(scene, (scene.levels[0],)), Guarded(uniform_scene, (scene.levels[0],))),
                 scene_dirs=(out,), ignore_memory=args.ignore_memory,
                 locked=(layout.case_dir(reference_scene.name), layout.case_dir(uniform_scene.name)))
     print(f"adapt {scene.name}: up to {args.steps} steps, bulk {args.bulk}, into {out}", file=sys.stderr)
@@ -106,8 +110,17 @@ def run(args: argparse.Namespace) -> int:
                            memory_guard=not args.ignore_memory)
         # Without a reference (it would not fit) a real scene's uniform levels have nothing to be measured against.
         measured = scene.manufactured or adaptation.reference is not None
-        uniform = uniform_runs(uniform_scene, layout, tuple(scene.levels), args.force, quiet) if measured else {}
-        return adaptation, uniform
+        levels = tuple(scene.levels) if scene.manufactured or not measured else \
+            uniform_levels_below(uniform_scene, adaptation.reference.record.dofs)
+        if not measured or not levels:
+            return adaptation, {}
+        if not args.ignore_memory:
+            try:
+                check_level_memory(uniform_scene, levels)
+            except EnvironmentFault as exc:  # as a step that would not fit: the steps reported, then exit 4
+                print(exc, file=sys.stderr)
+                return replace(adaptation, refused=str(exc)), {}
+        return adaptation, uniform_runs(uniform_scene, layout, levels, args.force, quiet)
 
     def report(result: tuple[Adaptation, dict]) -> None:
         adaptation, uniform = result
@@ -216,6 +229,14 @@ def run(args: argparse.Namespace) -> int:
     judged: dict = {}
     run_pipeline(plan, runs, report, verdict)
     return 0
+
+
+def uniform_levels_below(scene: Scene, dofs: int) -> tuple[int, ...]:
+    """The scene's uniform levels with fewer unknowns than the reference's `dofs` (counted before
+    they are meshed, pipeline.level_dofs): a level at least as fine as the reference cannot be
+    measured against it, so it is not run (paper3d's levels reach n = 64, 11 GB, where its
+    adaptive reference has a few hundred thousand unknowns)."""
+    return tuple(n for n in scene.levels if level_dofs(scene, n) < dofs)
 
 
 def matching_uniform(table: pd.DataFrame, flat: pd.DataFrame, fields: tuple[str, ...]) -> dict:

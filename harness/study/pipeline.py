@@ -28,7 +28,7 @@ from harness.core.atomic import StudyTransaction
 from harness.core.errors import VerdictError
 from harness.core.faults import check_results_root, naming
 from harness.core.guards import (Slope, check_memory, check_nested, check_not_shallower, check_slope_levels,
-                                 geometry_depth, mesh_file_bytes, need_disk)
+                                 geometry_depth, memory_estimate, mesh_file_bytes, need_disk)
 from harness.run.launcher import check_level_ranks
 from harness.scene.scene import Scene, load_scene
 
@@ -103,15 +103,30 @@ def check_guards(plan: Plan) -> None:
             if fewer:
                 print(f"warning: {fewer}", file=sys.stderr)
         if not plan.ignore_memory:
-            check_memory(scene.geometry.width, scene.geometry.height, levels, scene.effects, scene.element,
-                         depth=geometry_depth(scene.geometry), factorises=scene.factorises,
-                         multigrid=scene.multigrid_levels > 0, nodes_at=getattr(scene.geometry, "nodes_at", None))
+            check_level_memory(scene, levels)
         mesh_bytes += sum(mesh_file_bytes(scene.geometry, n) for n in levels)
     # The meshes are the one part of a study's output whose size is known before it runs: a
     # disk that cannot hold them cannot hold the study (each mesh is checked again when made).
     nearest = next((p for p in [plan.results, *plan.results.parents] if p.is_dir()), None)
     if nearest is not None and mesh_bytes:
         need_disk(nearest, mesh_bytes, "the study's meshes")
+
+
+def check_level_memory(scene: Scene, levels: tuple[int, ...]) -> None:
+    """The memory guard of a scene's levels (guards.check_memory), an EnvironmentFault (exit 4)
+    when the finest would not fit; also for levels a study chooses once it has run (adapt's
+    uniform levels, known only when its reference is)."""
+    check_memory(scene.geometry.width, scene.geometry.height, levels, scene.effects, scene.element,
+                 depth=geometry_depth(scene.geometry), factorises=scene.factorises,
+                 multigrid=scene.multigrid_levels > 0, nodes_at=getattr(scene.geometry, "nodes_at", None))
+
+
+def level_dofs(scene: Scene, n: int) -> int:
+    """The unknowns of the scene's uniform level n as the memory guard counts them, before it
+    is meshed (guards.level_nodes): exact for a structured level and a gmsh scene's split one, an
+    estimate for an unstructured or remeshed one."""
+    return memory_estimate(scene.geometry.width, scene.geometry.height, n, scene.effects, scene.element,
+                           geometry_depth(scene.geometry), nodes_at=getattr(scene.geometry, "nodes_at", None))[0]
 
 
 def run_pipeline(plan: Plan, runs: Callable[[], R], report: Callable[[R], object],
