@@ -87,7 +87,7 @@ class LevelRun:
     def __init__(self, scene: Scene, mesh: Path, n: int, layout: Layout, force: bool = False) -> None:
         check_solver_files(scene, layout)
         launcher.check_parallel(scene)
-        scene = launcher.level_scene(scene, n)  # on as many of run.ranks as the level can take
+        scene = launcher.level_scene(scene, n, mesh)  # on as many of run.ranks as the level can take
         self.scene, self.mesh, self.n, self.layout, self.force = scene, mesh, n, layout, force
         self.work: Path | None = None
         self.launched: freefem.Launched | None = None
