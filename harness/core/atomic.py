@@ -36,6 +36,9 @@ def write_atomic(target: Path, content: str | bytes) -> None:
         tmp.unlink(missing_ok=True)
 
 
+# How a study owns a directory (StudyTransaction): a scene directory's level dirs and
+# REPORT_FILES, an output directory's level dirs and files, or all of it.
+SCENE, OUTPUT, WHOLE = "scene", "output", "whole"
 # What a study owns in its scene directory besides the level runs.
 REPORT_FILES = ("convergence.csv", "summary.json", "convergence.png", "gci.csv")
 LEVEL_DIR = re.compile(r"n\d+")
@@ -44,19 +47,24 @@ BACKUP_PREFIX = ".backup-"
 # being replaced by one (swap_in, restore): left behind only by a process that died.
 RUN_TEMP_PREFIX = ".tmp-"
 OLD_PREFIX = ".old-"
+# Not backed up inside a directory: what only a live or dead process owns (the sweep's).
+TRANSIENT = shutil.ignore_patterns(f"{RUN_TEMP_PREFIX}*", f"{OLD_PREFIX}*", f"{BACKUP_PREFIX}*")
 
 
 class StudyTransaction:
     """A study's writes to the directories it owns, all or nothing.
 
-    `directories`: each scene directory of the study (its level dirs and REPORT_FILES) and
-    each output directory (`outputs`: its level dirs and every file directly in it: the
-    study's tables, Markdown and plots). On entry what they hold is kept as hard links in a
-    hidden backup dir per directory: nothing under a level dir is ever changed in place (a
-    new run is swapped in whole, run.py), so the links hold the earlier files at no copying
-    cost. On success the backups go; on any failure or signal every directory's earlier
-    level dirs and files are put back, so each holds the earlier complete study or the new
-    one, never a mix.
+    `directories`: each scene directory of the study (its level dirs and REPORT_FILES), each
+    output directory (`outputs`: its level dirs and every file directly in it: the study's
+    tables, Markdown and plots) and each directory the study owns whole (`whole`: everything
+    visible in it, its sub-folders and meshes too: an adaptive study's folder, whose meshes
+    are made from its runs). On entry what they hold is kept as hard links in a hidden backup
+    dir per directory: nothing under a level dir is ever changed in place (a new run is
+    swapped in whole, run.py), and every file is written to a temp name then moved over its
+    own, so the links hold the earlier files at no copying cost. On success the backups go; on
+    any failure or signal every directory's earlier level dirs and files are put back (in a
+    whole directory, what the study added besides is removed), so each holds the earlier
+    complete study or the new one, never a mix.
 
     One study at a time: every directory it owns, and each of `locked` (where its runs write
     without a report of its own: `solve`'s scene), is locked on entry (study_lock.py), or a
@@ -66,11 +74,13 @@ class StudyTransaction:
     those of runs whose process died during the study, a Dask worker killed while its task
     was rerun elsewhere (`swept_after`, for the study to report)."""
 
-    def __init__(self, *directories: Path, outputs: tuple[Path, ...] = (), locked: tuple[Path, ...] = ()) -> None:
+    def __init__(self, *directories: Path, outputs: tuple[Path, ...] = (), locked: tuple[Path, ...] = (),
+                 whole: tuple[Path, ...] = ()) -> None:
         tag = f"{BACKUP_PREFIX}{os.getpid()}-{uuid.uuid4().hex[:8]}"
-        # An output directory listed as a scene directory too is owned as an output (all its files).
-        owned = {Path(d): False for d in directories} | {Path(d): True for d in outputs}
-        self.owned = [(directory, every_file, directory / tag) for directory, every_file in owned.items()]
+        # A directory listed twice is owned the widest way: whole, then as an output (all its files).
+        owned = ({Path(d): SCENE for d in directories} | {Path(d): OUTPUT for d in outputs}
+                 | {Path(d): WHOLE for d in whole})
+        self.owned = [(directory, kind, directory / tag) for directory, kind in owned.items()]
         self.watched = tuple(dict.fromkeys([*owned, *map(Path, locked)]))
         self.locks = DirectoryLocks(self.watched)
         self.swept_after: list[Path] = []
@@ -83,16 +93,16 @@ class StudyTransaction:
     def __enter__(self) -> StudyTransaction:
         self.locks.__enter__()
         try:
-            for directory, every_file, backup in self.owned:
+            for directory, kind, backup in self.owned:
                 for stale in sorted(directory.glob(f"{BACKUP_PREFIX}*")):  # the lock's: a dead study's
-                    restore(stale, directory)
+                    restore(stale, directory, kind == WHOLE)
             for directory in self.watched:
                 sweep(directory)
-            for directory, every_file, backup in self.owned:
+            for directory, kind, backup in self.owned:
                 backup.mkdir()
-                for item in study_items(directory, every_file):
+                for item in study_items(directory, kind):
                     if item.is_dir():
-                        shutil.copytree(item, backup / item.name, copy_function=link_or_copy)
+                        shutil.copytree(item, backup / item.name, copy_function=link_or_copy, ignore=TRANSIENT)
                     else:
                         link_or_copy(item, backup / item.name)
         except BaseException:
@@ -102,11 +112,11 @@ class StudyTransaction:
 
     def __exit__(self, kind: type | None, *_: object) -> None:
         try:
-            for directory, _every_file, backup in self.owned:
+            for directory, owned, backup in self.owned:
                 if not backup.exists():
                     continue
                 if kind is not None:
-                    restore(backup, directory)
+                    restore(backup, directory, owned == WHOLE)
                 shutil.rmtree(backup, ignore_errors=True)
             live = CHILDREN.live_dirs()  # this process's runs still being torn down
             self.swept_after = [p for directory in self.watched for p in sweep(directory, keep=live)]
@@ -124,15 +134,35 @@ def link_or_copy(source: str | Path, target: str | Path) -> None:
         shutil.copy2(source, target)
 
 
-def study_items(case_dir: Path, every_file: bool = False) -> list[Path]:
-    """The level dirs and the report files (every visible file when `every_file`) of a directory."""
+def study_items(case_dir: Path, kind: str = SCENE) -> list[Path]:
+    """What a study owns in a directory: a scene directory's level dirs and report files, an
+    output directory's level dirs and every visible file, or everything visible."""
+    if kind == WHOLE:
+        return visible(case_dir)
     return [p for p in sorted(case_dir.iterdir())
             if (p.is_dir() and LEVEL_DIR.fullmatch(p.name))
-            or (p.is_file() and (p.name in REPORT_FILES or (every_file and not p.name.startswith("."))))]
+            or (p.is_file() and (p.name in REPORT_FILES or (kind == OUTPUT and not p.name.startswith("."))))]
 
 
-def restore(backup: Path, case_dir: Path) -> None:
-    """Put every item of `backup` back in place of what is there now, then drop the backup."""
+def visible(directory: Path) -> list[Path]:
+    """Every item of `directory` but the hidden ones (its lock, backups, runs' temp dirs)."""
+    return [p for p in sorted(directory.iterdir()) if not p.name.startswith(".")]
+
+
+def restore(backup: Path, case_dir: Path, whole: bool = False) -> None:
+    """Put every item of `backup` back in place of what is there now, then drop the backup;
+    `whole`: first remove what is there that the backup does not hold (the new study's own)."""
+    if whole:
+        kept = {item.name for item in backup.iterdir()}
+        for item in visible(case_dir):
+            if item.name in kept:
+                continue
+            if item.is_dir() and not item.is_symlink():
+                old = case_dir / f"{OLD_PREFIX}{item.name}-{uuid.uuid4().hex[:8]}"
+                os.replace(item, old)
+                shutil.rmtree(old, ignore_errors=True)
+            else:
+                item.unlink(missing_ok=True)
     for item in sorted(backup.iterdir()):
         target = case_dir / item.name
         if item.is_dir():

@@ -178,7 +178,7 @@ class LevelRun:
 
     def _new_work_dir(self) -> Path:
         final = self.layout.level_dir(self.scene.name, self.n)
-        work = final.with_name(f"{RUN_TEMP_PREFIX}n{self.n}-{uuid.uuid4().hex[:8]}")
+        work = final.with_name(f"{RUN_TEMP_PREFIX}{final.name}-{uuid.uuid4().hex[:8]}")
         work.mkdir(parents=True)
         CHILDREN.add_dir(work)  # removed on a signal, whichever thread owns it
         return work

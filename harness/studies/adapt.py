@@ -1,5 +1,7 @@
 """`python -m harness adapt CASE`: adaptive refinement driven by the a posteriori error
 estimate, in 2D and 3D (docs/adaptivity.md), into results/adapt/<case>/.
+Its runs are under that folder too: the steps' in step<i>/, the reference's in reference/, the
+uniform levels' in uniform/.
 
 Each step solves on the refinement of the step before: Dörfler marking of the recovery
 estimate (--bulk), newest-vertex bisection in 2D, longest-edge bisection in 3D. The true error
@@ -34,12 +36,13 @@ from harness.measure.fields import read_fields
 from harness.core.layout import Layout
 from harness.measure.norm_table import FIELD_NAMES, error_label
 from harness.core.errors import EnvironmentFault
+from harness.core.guards import check_adapt_not_shallower
 from harness.measure.run_checks import failed_checks, print_checks
 from harness.study.pipeline import Guarded, Plan, check_level_memory, level_dofs, run_pipeline, scene_of
 from harness.measure.rates import slope_fit
 from harness.run.run import check_solver_files
 from harness.scene.scene import Scene
-from harness.core.writers import PRECISE_CSV_FORMAT, write_csv, write_json
+from harness.core.writers import PRECISE_CSV_FORMAT, write_csv, write_json, write_with
 
 
 def bulk_fraction(text: str) -> float:
@@ -78,6 +81,17 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
     add_common(parser)
 
 
+def study_layout(results: Path, freefem: Path, name: str) -> Layout:
+    """results/adapt/<case>/, everything of the study under it, so that none of it meets a
+    convergence study's levels (n<N>/) or another case's folder (a case named <case>_uniform):
+    the report (adapt.csv, uniform.csv, summary.json, adapt.png, mesh.png), step<i>/ per step,
+    meshes/ (the first level's and every step's), and reference/ and uniform/, each a scene
+    directory of its own (n<N>/, meshes/)."""
+    out = results / name
+    return Layout(results=results, freefem=freefem, stepped=(name,),
+                  placed=((f"{name}_reference", out / "reference"), (f"{name}_uniform", out / "uniform")))
+
+
 def rate_in_dofs(dofs: pd.Series, errors: pd.Series, dimension: int) -> float:
     """The error's decay rate in the number of unknowns N (err ~ N^-rate; 1/d is optimal)."""
     fit = slope_fit((dofs.astype(float) ** (-1.0 / dimension)).tolist(), errors.tolist())
@@ -93,14 +107,16 @@ def run(args: argparse.Namespace) -> int:
     scene = scene_of(args.case, adaptive)
     reference_scene = scene_of(args.case, [*adaptive, f'scene.name="{scene.name}_reference"'])
     uniform_scene = scene_of(args.case, [*args.overrides, f'scene.name="{scene.name}_uniform"'])
-    layout = Layout(results=args.results / "adapt", freefem=args.freefem)
+    layout = study_layout(args.results / "adapt", args.freefem, scene.name)
     out = layout.case_dir(scene.name)
     # The uniform levels are guarded once the reference says which of them are run (the
-    # coarsest here, for its warnings and ranks).
+    # coarsest here, for its warnings and ranks). The study owns its folder whole: its steps'
+    # meshes are made from its runs, and an interrupted study must leave the earlier one as it was.
     plan = Plan(layout.results, (Guarded(scene, (scene.levels[0],)), Guarded(uniform_scene, (scene.levels[0],))),
-                scene_dirs=(out,), ignore_memory=args.ignore_memory,
+                whole=(out,), ignore_memory=args.ignore_memory,
                 locked=(layout.case_dir(reference_scene.name), layout.case_dir(uniform_scene.name)))
     print(f"adapt {scene.name}: up to {args.steps} steps, bulk {args.bulk}, into {out}", file=sys.stderr)
+    check_adapt_not_shallower(out, args.steps, args.max_dofs)
 
     def runs() -> tuple[Adaptation, dict]:
         check_solver_files(scene, layout)
@@ -190,8 +206,10 @@ def run(args: argparse.Namespace) -> int:
             f: scene.dimension * v for f, v in summary["rate_in_dofs"]["adaptive_estimate"].items()}
         judged["summary"] = summary
         write_json(summary, out / "summary.json")
-        plot_adapt(table, flat, fields, summary, out / "adapt.png")
-        plot_mesh(adaptation.steps[-1].mesh, out / "mesh.png", scene.name)
+        # Each plot drawn to a temp name and moved over its own: the study's backup holds the
+        # earlier one as a hard link, which a write in place would change too.
+        write_with(lambda tmp: plot_adapt(table, flat, fields, summary, tmp), out / "adapt.png")
+        write_with(lambda tmp: plot_mesh(adaptation.steps[-1].mesh, tmp, scene.name), out / "mesh.png")
         print(table[["step", "dofs", *[f"eta_{f}" for f in fields], *[f"err_{f}" for f in fields],
                      "newton_iterations"]].to_string(index=False, float_format=lambda v: f"{v:.4g}"))
         rates = summary["rate_in_dofs"]
@@ -287,7 +305,7 @@ def plot_adapt(table: pd.DataFrame, flat: pd.DataFrame, fields: tuple[str, ...],
     figure.suptitle(f"{summary['case']}: error against unknowns (optimal rate {rates['optimal']:.2f})")
     figure.tight_layout()
     path.parent.mkdir(parents=True, exist_ok=True)
-    figure.savefig(path, dpi=110)
+    figure.savefig(path, format="png", dpi=110)
     plt.close(figure)
 
 
@@ -311,5 +329,5 @@ def plot_mesh(mesh: Path, path: Path, name: str) -> None:
     ax.set_aspect("equal")
     ax.set_title(title)
     figure.tight_layout()
-    figure.savefig(path, dpi=130)
+    figure.savefig(path, format="png", dpi=130)
     plt.close(figure)

@@ -54,15 +54,17 @@ class Plan:
     """What a study guards and owns. `results`: the root it writes under; `scene_dirs`: the
     scene directories it writes a convergence report into; `outputs`: the directories whose
     every file is its (tables, Markdown, plots); `locked`: directories its runs write into
-    that it does not own (`solve`'s scene: locked, not restored); `nested`: whether it
-    compares levels (a convergence study), so they must be nested; `ignore_memory`: the
-    memory guard's override."""
+    that it does not own (`solve`'s scene: locked, not restored); `whole`: directories it
+    owns with everything in them (adapt's case folder: its steps, meshes, reference and
+    uniform levels); `nested`: whether it compares levels (a convergence study), so they must
+    be nested; `ignore_memory`: the memory guard's override."""
 
     results: Path
     guarded: tuple[Guarded, ...] = ()
     scene_dirs: tuple[Path, ...] = ()
     outputs: tuple[Path, ...] = ()
     locked: tuple[Path, ...] = ()
+    whole: tuple[Path, ...] = ()
     nested: bool = False
     ignore_memory: bool = False
 
@@ -136,11 +138,11 @@ def run_pipeline(plan: Plan, runs: Callable[[], R], report: Callable[[R], object
     (a verdict with another exit code raises its own error: crosscheck's 6 and 3)."""
     announce(plan.results)
     check_guards(plan)
-    transaction = StudyTransaction(*plan.scene_dirs, outputs=plan.outputs, locked=plan.locked)
+    transaction = StudyTransaction(*plan.scene_dirs, outputs=plan.outputs, locked=plan.locked, whole=plan.whole)
     with transaction:
         result = runs()
         # A write that names no file of its own is said to be in the study's first directory.
-        with naming(next(iter((*plan.outputs, *plan.scene_dirs)), plan.results)):
+        with naming(next(iter((*plan.whole, *plan.outputs, *plan.scene_dirs)), plan.results)):
             report(result)
     for path in transaction.swept_after:
         print(f"warning: {path}: the temp dir of a run whose process died during the study (a killed Dask "
