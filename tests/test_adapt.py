@@ -694,3 +694,28 @@ def test_an_interrupted_adaptive_study_leaves_the_earlier_one_intact(capsys, tmp
     assert unchanged(before, after) == []
     assert sorted(after) == sorted(before)  # nothing of the second study left behind
     assert not [p for p in results.rglob(".backup-*")] and not [p for p in results.rglob(".tmp-*")]
+
+
+def test_a_shallower_adaptive_study_never_replaces_a_finer_one(capsys, tmp_path):
+    """A study of 4 steps in the folder: 3 steps, or a dof budget that its step 2 already
+    reaches, would stop before its last step and replace it. Each is refused before anything
+    runs, one line naming the folder, both step counts and what to do, exit 2, nothing changed;
+    as many steps and no budget runs (its uniform levels and steps reused: the same study)."""
+    results = tmp_path / "results"
+    argv = ["adapt", str(PAPER), "--set", "study.levels=[2, 4]", "--set", "study.adaptive_band=[-10.0, 10.0]",
+            "--results", str(results)]
+    assert main([*argv, "--steps", "4"]) == 0
+    before = files_under(results)
+    dofs = pd.read_csv(results / "adapt" / "paper" / "adapt.csv")["dofs"].tolist()
+    capsys.readouterr()
+    for more, words in ((["--steps", "3"], ["4 steps", "stops at 3", "--steps 4 or more"]),
+                        (["--steps", "12", "--max-dofs", str(dofs[1])], ["stops at step 2", f"--max-dofs {dofs[-1]:,}"])):
+        code = main([*argv, *more])
+        err = capsys.readouterr().err.strip().splitlines()
+        assert code == 2, (more, err)
+        assert err[-1].startswith(f"error: {results / 'adapt' / 'paper'} holds an adaptive study of 4 steps"), err[-1]
+        assert all(w in err[-1] for w in words) and "--results DIR" in err[-1], err[-1]
+        assert len([line for line in err if line.startswith("error:")]) == 1
+        assert unchanged(before, files_under(results)) == []
+    assert main([*argv, "--steps", "12", "--max-dofs", str(dofs[-1])]) == 0  # stops at the same last step
+    assert pd.read_csv(results / "adapt" / "paper" / "adapt.csv")["dofs"].tolist() == dofs

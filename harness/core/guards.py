@@ -142,6 +142,25 @@ def check_adapt_not_shallower(case_dir: Path, steps: int, max_dofs: int | None) 
     if isinstance(facts, dict) and "levels" in facts:
         raise SceneError(f"{case_dir} holds a convergence study (summary.json with its levels), which this adaptive "
                          f"study would replace; write elsewhere with --results DIR, or remove {case_dir} first")
+    if not is_adaptive(facts):
+        return
+    try:
+        recorded = int(facts["steps"])
+        with (case_dir / "adapt.csv").open() as table:
+            dofs = [int(float(row["dofs"])) for row in csv.DictReader(table)]
+    except (OSError, ValueError, TypeError, KeyError):
+        return  # its table is unreadable: nothing to compare with, the transaction replaces it
+    if not dofs:
+        return
+    what = f"{case_dir} holds an adaptive study of {recorded} steps (to {dofs[-1]:,} unknowns)"
+    fix = f"write elsewhere with --results DIR, or remove {case_dir} first"
+    if steps < recorded:
+        raise SceneError(f"{what} and this one stops at {steps}: it would replace the finer study. "
+                         f"Run --steps {recorded} or more, {fix}")
+    if max_dofs is not None and max(dofs[:-1], default=0) >= max_dofs:
+        first = next(i for i, d in enumerate(dofs, start=1) if d >= max_dofs)
+        raise SceneError(f"{what} and this one stops at step {first} (--max-dofs {max_dofs:,}): it would replace the "
+                         f"finer study. Run --max-dofs {dofs[-1]:,} or more, {fix}")
 
 
 def unknowns_per_node(effects: tuple[str, ...], dimension: int = 2) -> int:
