@@ -127,8 +127,8 @@ def test_a_loop_stopped_by_its_dof_budget_after_one_step_reports_no_slope(capsys
                  "--results", str(results)])
     captured = capsys.readouterr()
     assert code == 0, captured.err
-    warnings = [line for line in captured.err.splitlines() if "no slope" in line]
-    assert len(warnings) == 1 and warnings[0].startswith("warning: paper: 1 step(s)") and "not judged" in warnings[0]
+    warnings = [line for line in captured.err.splitlines() if "too few for a slope" in line]
+    assert len(warnings) == 1 and warnings[0].startswith("warning: paper: the loop stopped after 1 of 5 steps") and "not judged" in warnings[0]
     assert "error:" not in captured.err and "nan" not in captured.out
     summary = json.loads((results / "adapt" / "paper" / "summary.json").read_text())
     assert summary["steps"] == 1 and summary["slope_of_estimate"] is None
