@@ -57,14 +57,15 @@ class StudyTransaction:
     `directories`: each scene directory of the study (its level dirs and REPORT_FILES), each
     output directory (`outputs`: its level dirs and every file directly in it: the study's
     tables, Markdown and plots) and each directory the study owns whole (`whole`: everything
-    visible in it, its sub-folders and meshes too: an adaptive study's folder, whose meshes
-    are made from its runs). On entry what they hold is kept as hard links in a hidden backup
-    dir per directory: nothing under a level dir is ever changed in place (a new run is
-    swapped in whole, run.py), and every file is written to a temp name then moved over its
-    own, so the links hold the earlier files at no copying cost. On success the backups go; on
-    any failure or signal every directory's earlier level dirs and files are put back (in a
-    whole directory, what the study added besides is removed), so each holds the earlier
-    complete study or the new one, never a mix.
+    visible in it, its sub-folders and meshes too, but the directories owned here in their
+    own right: an adaptive study's folder, whose meshes are made from its runs). On entry what
+    they hold is kept as hard links in a hidden backup dir per directory: nothing under a
+    level dir is ever changed in place (a new run is swapped in whole, run.py), and every file
+    is written to a temp name then moved over its own, so the links hold the earlier files at
+    no copying cost. On success the backups go; on any failure or signal every directory's
+    earlier items are put back, so each holds the earlier complete study or the new one, never
+    a mix. What the earlier study did not have stays: a new level's run (the cache of the
+    next study) and a failed run's `.failed` dir (what the error line points to).
 
     One study at a time: every directory it owns, and each of `locked` (where its runs write
     without a report of its own: `solve`'s scene), is locked on entry (study_lock.py), or a
@@ -95,12 +96,13 @@ class StudyTransaction:
         try:
             for directory, kind, backup in self.owned:
                 for stale in sorted(directory.glob(f"{BACKUP_PREFIX}*")):  # the lock's: a dead study's
-                    restore(stale, directory, kind == WHOLE)
+                    restore(stale, directory)
             for directory in self.watched:
                 sweep(directory)
+            owned = {directory for directory, _kind, _backup in self.owned}
             for directory, kind, backup in self.owned:
                 backup.mkdir()
-                for item in study_items(directory, kind):
+                for item in study_items(directory, kind, skip=owned):
                     if item.is_dir():
                         shutil.copytree(item, backup / item.name, copy_function=link_or_copy, ignore=TRANSIENT)
                     else:
@@ -112,11 +114,11 @@ class StudyTransaction:
 
     def __exit__(self, kind: type | None, *_: object) -> None:
         try:
-            for directory, owned, backup in self.owned:
+            for directory, _owned, backup in self.owned:
                 if not backup.exists():
                     continue
                 if kind is not None:
-                    restore(backup, directory, owned == WHOLE)
+                    restore(backup, directory)
                 shutil.rmtree(backup, ignore_errors=True)
             live = CHILDREN.live_dirs()  # this process's runs still being torn down
             self.swept_after = [p for directory in self.watched for p in sweep(directory, keep=live)]
@@ -134,11 +136,12 @@ def link_or_copy(source: str | Path, target: str | Path) -> None:
         shutil.copy2(source, target)
 
 
-def study_items(case_dir: Path, kind: str = SCENE) -> list[Path]:
+def study_items(case_dir: Path, kind: str = SCENE, skip: Collection[Path] = ()) -> list[Path]:
     """What a study owns in a directory: a scene directory's level dirs and report files, an
-    output directory's level dirs and every visible file, or everything visible."""
+    output directory's level dirs and every visible file, or everything visible but `skip`
+    (the sub-folders the study owns in their own right) and failed runs' dirs."""
     if kind == WHOLE:
-        return visible(case_dir)
+        return [p for p in visible(case_dir) if p not in skip and not p.name.endswith(".failed")]
     return [p for p in sorted(case_dir.iterdir())
             if (p.is_dir() and LEVEL_DIR.fullmatch(p.name))
             or (p.is_file() and (p.name in REPORT_FILES or (kind == OUTPUT and not p.name.startswith("."))))]
@@ -149,20 +152,8 @@ def visible(directory: Path) -> list[Path]:
     return [p for p in sorted(directory.iterdir()) if not p.name.startswith(".")]
 
 
-def restore(backup: Path, case_dir: Path, whole: bool = False) -> None:
-    """Put every item of `backup` back in place of what is there now, then drop the backup;
-    `whole`: first remove what is there that the backup does not hold (the new study's own)."""
-    if whole:
-        kept = {item.name for item in backup.iterdir()}
-        for item in visible(case_dir):
-            if item.name in kept:
-                continue
-            if item.is_dir() and not item.is_symlink():
-                old = case_dir / f"{OLD_PREFIX}{item.name}-{uuid.uuid4().hex[:8]}"
-                os.replace(item, old)
-                shutil.rmtree(old, ignore_errors=True)
-            else:
-                item.unlink(missing_ok=True)
+def restore(backup: Path, case_dir: Path) -> None:
+    """Put every item of `backup` back in place of what is there now, then drop the backup."""
     for item in sorted(backup.iterdir()):
         target = case_dir / item.name
         if item.is_dir():

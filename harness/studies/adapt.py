@@ -85,8 +85,8 @@ def study_layout(results: Path, freefem: Path, name: str) -> Layout:
     """results/adapt/<case>/, everything of the study under it, so that none of it meets a
     convergence study's levels (n<N>/) or another case's folder (a case named <case>_uniform):
     the report (adapt.csv, uniform.csv, summary.json, adapt.png, mesh.png), step<i>/ per step,
-    meshes/ (the first level's and every step's), and reference/ and uniform/, each a scene
-    directory of its own (n<N>/, meshes/)."""
+    meshes/ (the first level's, every step's and the reference's), and reference/ and uniform/,
+    each a scene directory of its own (n<N>/; uniform/meshes/)."""
     out = results / name
     return Layout(results=results, freefem=freefem, stepped=(name,),
                   placed=((f"{name}_reference", out / "reference"), (f"{name}_uniform", out / "uniform")))
@@ -110,11 +110,12 @@ def run(args: argparse.Namespace) -> int:
     layout = study_layout(args.results / "adapt", args.freefem, scene.name)
     out = layout.case_dir(scene.name)
     # The uniform levels are guarded once the reference says which of them are run (the
-    # coarsest here, for its warnings and ranks). The study owns its folder whole: its steps'
-    # meshes are made from its runs, and an interrupted study must leave the earlier one as it was.
+    # coarsest here, for its warnings and ranks). The study owns its folder whole (its steps'
+    # meshes are made from its runs: an interrupted study must leave the earlier ones as they
+    # were), and the reference's and uniform levels' folders in it as scene directories.
     plan = Plan(layout.results, (Guarded(scene, (scene.levels[0],)), Guarded(uniform_scene, (scene.levels[0],))),
                 whole=(out,), ignore_memory=args.ignore_memory,
-                locked=(layout.case_dir(reference_scene.name), layout.case_dir(uniform_scene.name)))
+                scene_dirs=(layout.case_dir(reference_scene.name), layout.case_dir(uniform_scene.name)))
     print(f"adapt {scene.name}: up to {args.steps} steps, bulk {args.bulk}, into {out}", file=sys.stderr)
     check_adapt_not_shallower(out, args.steps, args.max_dofs)
 
