@@ -106,6 +106,9 @@ def test_the_adapt_command_writes_its_tables_and_falls_faster_than_uniform(capsy
     (["--bulk", "0"], ["--bulk", "(0, 1]"]),
     (["--bulk", "1.5"], ["--bulk", "(0, 1]"]),
     (["--steps", "0"], ["--steps"]),
+    # one or two steps leave one in the later half of the steps, over which the rate is fitted
+    (["--steps", "1"], ["--steps", "at least 3"]),
+    (["--steps", "2"], ["--steps", "at least 3"]),
     (["--max-dofs", "-3"], ["--max-dofs"]),
 ])
 def test_bad_arguments_are_one_line_and_exit_2(capsys, tmp_path, argv, words):
@@ -116,12 +119,44 @@ def test_bad_arguments_are_one_line_and_exit_2(capsys, tmp_path, argv, words):
     assert len(err) == 1 and all(w in err[0] for w in words), err
 
 
+def test_a_loop_stopped_by_its_dof_budget_after_one_step_reports_no_slope(capsys, tmp_path):
+    """--max-dofs reached by the first step: one step, no slope of the estimate to fit. The
+    summary says so (null), the band is not judged (a warning line, not a NaN verdict), exit 0."""
+    results = tmp_path / "results"
+    code = main(["adapt", str(PAPER), "--steps", "5", "--max-dofs", "1", "--set", "study.levels=[2, 4]",
+                 "--results", str(results)])
+    captured = capsys.readouterr()
+    assert code == 0, captured.err
+    warnings = [line for line in captured.err.splitlines() if "too few for a slope" in line]
+    assert len(warnings) == 1 and warnings[0].startswith("warning: paper: the loop stopped after 1 of 5 steps") and "not judged" in warnings[0]
+    assert "error:" not in captured.err and "nan" not in captured.out
+    summary = json.loads((results / "adapt" / "paper" / "summary.json").read_text())
+    assert summary["steps"] == 1 and summary["slope_of_estimate"] is None
+
+
+def test_only_the_uniform_levels_coarser_than_the_reference_are_run(tmp_path):
+    """The uniform levels are measured against the adaptive reference, so one at least as fine
+    cannot be: the paper's levels to n = 64 (66,820 unknowns) beside three steps, whose reference
+    has 800, run only n = 2, 4; none finer is meshed or solved."""
+    results = tmp_path / "results"
+    code = main(["adapt", str(PAPER), "--steps", "3", "--set", "study.levels=[2, 4, 8, 16, 32, 64]",
+                 "--set", "study.adaptive_band=[-10.0, 10.0]", "--results", str(results)])
+    assert code == 0
+    reference = json.loads((results / "adapt" / "paper" / "summary.json").read_text())["reference"]["dofs"]
+    assert 340 < reference < 1188  # between the uniform n = 4 and n = 8 (measured 800)
+    assert pd.read_csv(results / "adapt" / "paper" / "uniform.csv")["n"].tolist() == [2, 4]
+    runs = sorted(p.name for p in results.glob("adapt/**/n*") if p.is_dir())
+    meshes = sorted(p.name for p in results.glob("adapt/**/mesh_n*.msh"))
+    assert not {"n8", "n16", "n32", "n64"} & set(runs), runs
+    assert not {"mesh_n8.msh", "mesh_n16.msh", "mesh_n32.msh", "mesh_n64.msh"} & set(meshes), meshes
+
+
 def test_a_case_that_does_not_warm_start_is_refused_up_front(capsys, tmp_path):
     code = main(["adapt", str(PAPER), "--set", 'scene.initial_guess="zero"', "--results", str(tmp_path)])
     err = capsys.readouterr().err.strip().splitlines()
     assert code == 2
     assert len(err) == 1 and "initial_guess" in err[0] and "coarser" in err[0], err
-    assert not (tmp_path / "adapt" / "paper" / "n1").exists()
+    assert not (tmp_path / "adapt" / "paper" / "n1").exists() and not (tmp_path / "adapt" / "paper" / "step1").exists()
 
 
 def adapt_manufactured(tmp_path, case: str, steps: int, levels: str) -> tuple[dict, pd.DataFrame]:
@@ -384,8 +419,8 @@ def test_the_l_shapes_singularity_is_refined_to_the_optimal_rate(tmp_path, case)
     assert np.linalg.norm(p[smallest].mean(axis=1), axis=1).min() < 1e-2
     # the errors the rates rest on, measured independently at the singular corner
     results = tmp_path / "results" / "adapt"
-    assert_errors_independently_measured(results / f"mms_{case}" / f"n{len(table)}", case, field)
-    assert_errors_independently_measured(results / f"mms_{case}_uniform" / f"n{json.loads(expect.levels)[-1]}",
+    assert_errors_independently_measured(results / f"mms_{case}" / f"step{len(table)}", case, field)
+    assert_errors_independently_measured(results / f"mms_{case}" / "uniform" / f"n{json.loads(expect.levels)[-1]}",
                                          case, field)
 
 
@@ -602,3 +637,116 @@ def test_the_adaptive_steps_add_null_pivot_detection_to_a_multigrids_coarse_lu_o
     assert adapted.multigrid_levels == disc.multigrid_levels
     assert adaptive_overrides(adapted) == []
     assert adaptive_overrides(load_scene(PAPER)) == []
+
+
+def files_under(root: Path) -> dict[str, bytes]:
+    """Every file under `root` (its locks aside) by its path relative to `root`, with its bytes."""
+    return {str(p.relative_to(root)): p.read_bytes() for p in sorted(root.rglob("*"))
+            if p.is_file() and p.name != ".lock"}
+
+
+def unchanged(before: dict[str, bytes], after: dict[str, bytes]) -> list[str]:
+    """The files of `before` that `after` changed or lost (files it added are not counted)."""
+    return [path for path, content in before.items() if after.get(path) != content]
+
+
+ADAPT3 = ["--steps", "3", "--set", "study.levels=[2, 4]", "--set", "study.adaptive_band=[-10.0, 10.0]"]
+
+
+def test_an_adaptive_study_beside_a_case_named_like_its_uniform_folder_changes_nothing_of_it(tmp_path):
+    """adapt's steps, reference and uniform levels live in its own case folder (step<i>/,
+    reference/, uniform/): a second case named paper_uniform, adapted into the same results,
+    changes no file of the paper's study (its steps were n<i>/ beside the paper's uniform
+    levels in paper_uniform/: step 2 replaced the uniform n = 2, silently)."""
+    results = tmp_path / "results"
+    assert main(["adapt", str(PAPER), *ADAPT3, "--results", str(results)]) == 0
+    before = files_under(results)
+    assert main(["adapt", str(PAPER), *ADAPT3, "--bulk", "0.8", "--set", 'scene.name="paper_uniform"',
+                 "--results", str(results)]) == 0
+    assert unchanged(before, files_under(results)) == []
+    assert (results / "adapt" / "paper" / "step3" / "run.json").is_file()
+    assert (results / "adapt" / "paper" / "uniform" / "n4" / "run.json").is_file()
+
+
+@pytest.mark.parametrize("first", ["adapt", "convergence"])
+def test_an_adaptive_and_a_convergence_study_never_share_a_folder(capsys, tmp_path, first):
+    """A convergence study written into results/adapt (its case's folder is the adaptive
+    study's) would replace the adaptive summary.json, and the other way round: whichever comes
+    second is refused before anything runs, one line naming the folder, exit 2, and nothing
+    of the first changes."""
+    results = tmp_path / "results"
+    adapt_argv = ["adapt", str(PAPER), *ADAPT3, "--results", str(results)]
+    convergence_argv = ["convergence", str(PAPER), "--levels", "2,4,8", "--set", "study.slope_band=[-10.0, 10.0]",
+                        "--results", str(results / "adapt")]  # (a band three coarse levels cannot miss)
+    runs = [adapt_argv, convergence_argv] if first == "adapt" else [convergence_argv, adapt_argv]
+    assert main(runs[0]) == 0
+    before = files_under(results)
+    capsys.readouterr()
+    code = main(runs[1])
+    err = capsys.readouterr().err.strip().splitlines()
+    assert code == 2
+    assert err[-1].startswith("error: ") and str(results / "adapt" / "paper") in err[-1], err
+    assert ("holds an adaptive study" if first == "adapt" else "holds a convergence study") in err[-1], err[-1]
+    assert len([line for line in err if line.startswith("error:")]) == 1 and "Traceback" not in "\n".join(err)
+    assert unchanged(before, files_under(results)) == []
+
+
+@pytest.mark.parametrize("where", ["report", "runs"])
+def test_an_interrupted_adaptive_study_leaves_the_earlier_one_intact(capsys, tmp_path, monkeypatch, where):
+    """SIGINT during a second study (other steps: --bulk 0.9, one step more), while its report
+    is written (adapt.csv and uniform.csv already are) or while its uniform levels run (its
+    steps, meshes and reference done): exit 130, and every file of the first study is as it
+    was, its steps, meshes, reference and uniform levels too; of the second only its new runs stay.
+    (The backup held summary.json and the step folders only: adapt.csv, the plots, the meshes
+    and the reference were the second study's, the rest the first's.)"""
+    import signal
+
+    import harness.studies.adapt as command
+    from harness.core.signals import Interrupted
+
+    results = tmp_path / "results"
+    assert main(["adapt", str(PAPER), *ADAPT3, "--results", str(results)]) == 0
+    before = files_under(results)
+
+    def interrupt(*_args, **_kwargs):  # noqa: ANN002, ANN003, ANN202
+        raise Interrupted(signal.SIGINT)
+
+    monkeypatch.setattr(command, "plot_adapt" if where == "report" else "uniform_runs", interrupt)
+    capsys.readouterr()
+    code = main(["adapt", str(PAPER), *ADAPT3, "--steps", "4", "--bulk", "0.9", "--results", str(results)])
+    err = capsys.readouterr().err.strip().splitlines()
+    assert code == 130, err
+    after = files_under(results)
+    assert unchanged(before, after) == []
+    # What the first study had not stays as a convergence study's new levels do: the second's
+    # new runs (the cache of the next study: its step 4, its reference), no report file, none
+    # of its steps' meshes.
+    added = sorted(set(after) - set(before))
+    assert "adapt/paper/step4/run.json" in added and "adapt/paper/reference/n5/run.json" in added, added
+    assert not [a for a in added if a.count("/") == 2 or a.startswith("adapt/paper/meshes/")], added
+    assert not [p for p in results.rglob(".backup-*")] and not [p for p in results.rglob(".tmp-*")]
+
+
+def test_a_shallower_adaptive_study_never_replaces_a_finer_one(capsys, tmp_path):
+    """A study of 4 steps in the folder: 3 steps, or a dof budget that its step 2 already
+    reaches, would stop before its last step and replace it. Each is refused before anything
+    runs, one line naming the folder, both step counts and what to do, exit 2, nothing changed;
+    as many steps and no budget runs (its uniform levels and steps reused: the same study)."""
+    results = tmp_path / "results"
+    argv = ["adapt", str(PAPER), "--set", "study.levels=[2, 4]", "--set", "study.adaptive_band=[-10.0, 10.0]",
+            "--results", str(results)]
+    assert main([*argv, "--steps", "4"]) == 0
+    before = files_under(results)
+    dofs = pd.read_csv(results / "adapt" / "paper" / "adapt.csv")["dofs"].tolist()
+    capsys.readouterr()
+    for more, words in ((["--steps", "3"], ["4 steps", "stops at 3", "--steps 4 or more"]),
+                        (["--steps", "12", "--max-dofs", str(dofs[1])], ["stops at step 2", f"--max-dofs {dofs[-1]:,}"])):
+        code = main([*argv, *more])
+        err = capsys.readouterr().err.strip().splitlines()
+        assert code == 2, (more, err)
+        assert err[-1].startswith(f"error: {results / 'adapt' / 'paper'} holds an adaptive study of 4 steps"), err[-1]
+        assert all(w in err[-1] for w in words) and "--results DIR" in err[-1], err[-1]
+        assert len([line for line in err if line.startswith("error:")]) == 1
+        assert unchanged(before, files_under(results)) == []
+    assert main([*argv, "--steps", "12", "--max-dofs", str(dofs[-1])]) == 0  # stops at the same last step
+    assert pd.read_csv(results / "adapt" / "paper" / "adapt.csv")["dofs"].tolist() == dofs

@@ -13,6 +13,7 @@ from pathlib import Path
 
 import meshio
 import numpy as np
+import pandas as pd
 import pytest
 
 from harness.cli import main
@@ -270,3 +271,61 @@ def test_a_rank_killed_during_a_petsc_solve_is_one_line_exit_3_and_no_process_le
     wait_for(lambda: not any(alive(pid) for pid in tree), timeout=10)
     case = results / "paper"
     assert not list(case.glob(".tmp-*")) and not (case / "n128").exists()
+
+
+def test_a_chain_level_too_small_for_the_ranks_runs_without_their_options(tmp_path, capsys):
+    """The distributed multigrid's options, given on 2 ranks: the chain's start n = 1 (10 nodes)
+    runs on one rank, whose scheme never reads -matptap_via (only the Galerkin products across
+    ranks do); it is not passed there, so PETSc's check of unread options does not blame it
+    (it ended in exit 2, "-matptap_via never used"); n = 2 runs on the 2 ranks with it."""
+    results = tmp_path / "results"
+    code = main(["solve", str(CASES / "paper.toml"), "--n", "2", "--set", "study.levels=[1, 2]",
+                 "--set", "run.linear_solver=petsc", "--set", "run.ranks=2",
+                 "--set", f'run.petsc_options="{petsc_options.MULTIGRID_ON_RANKS}"', "--results", str(results)])
+    assert code == 0, capsys.readouterr().err
+    one = json.loads((results / "paper" / "n1" / "run.json").read_text())
+    two = json.loads((results / "paper" / "n2" / "run.json").read_text())
+    assert one["converged"] and one.get("ranks") in (None, 1) and two["converged"] and two["ranks"] == 2
+    given = json.loads((results / "paper" / "n2" / "inputs.json").read_text())
+    assert "-matptap_via" in json.dumps(given) and "-matptap_via" not in (results / "paper" / "n1" / "inputs.json").read_text()
+
+
+def test_adapt_on_two_ranks_in_2d_runs_each_step_on_the_ranks_its_mesh_takes(tmp_path, capsys):
+    """`adapt` with PETSc on 2 ranks: step 1 is the case's level 2 (27 nodes, 3 ranks' worth),
+    run on the 2 ranks, not on one as the uniform level n = 1 its number once named would be;
+    every step and the reference converge (the study ended in exit 2, blaming -matptap_via)."""
+    results = tmp_path / "results"
+    code = main(["adapt", str(CASES / "paper.toml"), "--steps", "3", "--set", "run.linear_solver=petsc",
+                 "--set", "run.ranks=2", "--set", "study.levels=[2, 4]",
+                 "--set", "study.adaptive_band=[-10.0, 10.0]", "--results", str(results)])  # 3 steps: no band
+    assert code == 0, capsys.readouterr().err
+    table = pd.read_csv(results / "adapt" / "paper" / "adapt.csv")
+    assert table["step"].tolist() == [1, 2, 3]
+    for run in results.glob("adapt/**/run.json"):
+        record = json.loads(run.read_text())
+        assert record["converged"] and record["ranks"] == 2, run
+
+
+def test_an_adapted_mesh_takes_the_ranks_of_its_own_nodes_and_one_rank_drops_the_ranks_options(tmp_path):
+    """launcher.level_capacity of an adaptive step's mesh (marked by mark_coarser, even nested in
+    none) counts its nodes, whatever its label; a uniform level's mesh keeps its level's count.
+    Scene.on_ranks(1) drops -matptap_via (and its value) from given options, keeps the rest and
+    leaves blank options to the one-rank default."""
+    from harness.mesh.msh import mark_coarser
+    from harness.run.launcher import level_capacity, level_scene
+
+    scene = load_scene(CASES / "paper.toml", ["run.linear_solver=petsc", "run.ranks=2"])
+    level2 = build_mesh(scene.geometry, 2, tmp_path / "meshes", warn=False).path  # 27 nodes
+    assert level_capacity(scene, 1, level2) == 1  # unmarked: a level of the family, n = 1's 10 nodes
+    step = tmp_path / "meshes" / "adapt_1.msh"
+    step.write_bytes(level2.read_bytes())
+    mark_coarser(step, [])
+    assert level_capacity(scene, 1, step) == 3
+    assert level_scene(scene, 1, step).sections.run.ranks == 2
+    given = load_scene(CASES / "paper.toml", ["run.linear_solver=petsc", "run.ranks=2",
+                                              f'run.petsc_options="{petsc_options.MULTIGRID_ON_RANKS}"'])
+    alone = given.on_ranks(1)
+    assert alone.petsc_options.split() == [w for w in petsc_options.MULTIGRID_ON_RANKS.split()
+                                           if w not in ("-matptap_via", "allatonce")]
+    assert alone.table["run"]["petsc_options"] == alone.sections.run.petsc_options
+    assert scene.on_ranks(1).petsc_options == petsc_options.MUMPS_LU

@@ -36,6 +36,9 @@ def write_atomic(target: Path, content: str | bytes) -> None:
         tmp.unlink(missing_ok=True)
 
 
+# How a study owns a directory (StudyTransaction): a scene directory's level dirs and
+# REPORT_FILES, an output directory's level dirs and files, or all of it.
+SCENE, OUTPUT, WHOLE = "scene", "output", "whole"
 # What a study owns in its scene directory besides the level runs.
 REPORT_FILES = ("convergence.csv", "summary.json", "convergence.png", "gci.csv")
 LEVEL_DIR = re.compile(r"n\d+")
@@ -44,19 +47,25 @@ BACKUP_PREFIX = ".backup-"
 # being replaced by one (swap_in, restore): left behind only by a process that died.
 RUN_TEMP_PREFIX = ".tmp-"
 OLD_PREFIX = ".old-"
+# Not backed up inside a directory: what only a live or dead process owns (the sweep's).
+TRANSIENT = shutil.ignore_patterns(f"{RUN_TEMP_PREFIX}*", f"{OLD_PREFIX}*", f"{BACKUP_PREFIX}*")
 
 
 class StudyTransaction:
     """A study's writes to the directories it owns, all or nothing.
 
-    `directories`: each scene directory of the study (its level dirs and REPORT_FILES) and
-    each output directory (`outputs`: its level dirs and every file directly in it: the
-    study's tables, Markdown and plots). On entry what they hold is kept as hard links in a
-    hidden backup dir per directory: nothing under a level dir is ever changed in place (a
-    new run is swapped in whole, run.py), so the links hold the earlier files at no copying
-    cost. On success the backups go; on any failure or signal every directory's earlier
-    level dirs and files are put back, so each holds the earlier complete study or the new
-    one, never a mix.
+    `directories`: each scene directory of the study (its level dirs and REPORT_FILES), each
+    output directory (`outputs`: its level dirs and every file directly in it: the study's
+    tables, Markdown and plots) and each directory the study owns whole (`whole`: everything
+    visible in it, its sub-folders and meshes too, but the directories owned here in their
+    own right: an adaptive study's folder, whose meshes are made from its runs). On entry what
+    they hold is kept as hard links in a hidden backup dir per directory: nothing under a
+    level dir is ever changed in place (a new run is swapped in whole, run.py), and every file
+    is written to a temp name then moved over its own, so the links hold the earlier files at
+    no copying cost. On success the backups go; on any failure or signal every directory's
+    earlier items are put back, so each holds the earlier complete study or the new one, never
+    a mix. What the earlier study did not have stays: a new level's run (the cache of the
+    next study) and a failed run's `.failed` dir (what the error line points to).
 
     One study at a time: every directory it owns, and each of `locked` (where its runs write
     without a report of its own: `solve`'s scene), is locked on entry (study_lock.py), or a
@@ -66,11 +75,13 @@ class StudyTransaction:
     those of runs whose process died during the study, a Dask worker killed while its task
     was rerun elsewhere (`swept_after`, for the study to report)."""
 
-    def __init__(self, *directories: Path, outputs: tuple[Path, ...] = (), locked: tuple[Path, ...] = ()) -> None:
+    def __init__(self, *directories: Path, outputs: tuple[Path, ...] = (), locked: tuple[Path, ...] = (),
+                 whole: tuple[Path, ...] = ()) -> None:
         tag = f"{BACKUP_PREFIX}{os.getpid()}-{uuid.uuid4().hex[:8]}"
-        # An output directory listed as a scene directory too is owned as an output (all its files).
-        owned = {Path(d): False for d in directories} | {Path(d): True for d in outputs}
-        self.owned = [(directory, every_file, directory / tag) for directory, every_file in owned.items()]
+        # A directory listed twice is owned the widest way: whole, then as an output (all its files).
+        owned = ({Path(d): SCENE for d in directories} | {Path(d): OUTPUT for d in outputs}
+                 | {Path(d): WHOLE for d in whole})
+        self.owned = [(directory, kind, directory / tag) for directory, kind in owned.items()]
         self.watched = tuple(dict.fromkeys([*owned, *map(Path, locked)]))
         self.locks = DirectoryLocks(self.watched)
         self.swept_after: list[Path] = []
@@ -83,16 +94,17 @@ class StudyTransaction:
     def __enter__(self) -> StudyTransaction:
         self.locks.__enter__()
         try:
-            for directory, every_file, backup in self.owned:
+            for directory, kind, backup in self.owned:
                 for stale in sorted(directory.glob(f"{BACKUP_PREFIX}*")):  # the lock's: a dead study's
                     restore(stale, directory)
             for directory in self.watched:
                 sweep(directory)
-            for directory, every_file, backup in self.owned:
+            owned = {directory for directory, _kind, _backup in self.owned}
+            for directory, kind, backup in self.owned:
                 backup.mkdir()
-                for item in study_items(directory, every_file):
+                for item in study_items(directory, kind, skip=owned):
                     if item.is_dir():
-                        shutil.copytree(item, backup / item.name, copy_function=link_or_copy)
+                        shutil.copytree(item, backup / item.name, copy_function=link_or_copy, ignore=TRANSIENT)
                     else:
                         link_or_copy(item, backup / item.name)
         except BaseException:
@@ -102,7 +114,7 @@ class StudyTransaction:
 
     def __exit__(self, kind: type | None, *_: object) -> None:
         try:
-            for directory, _every_file, backup in self.owned:
+            for directory, _owned, backup in self.owned:
                 if not backup.exists():
                     continue
                 if kind is not None:
@@ -124,11 +136,20 @@ def link_or_copy(source: str | Path, target: str | Path) -> None:
         shutil.copy2(source, target)
 
 
-def study_items(case_dir: Path, every_file: bool = False) -> list[Path]:
-    """The level dirs and the report files (every visible file when `every_file`) of a directory."""
+def study_items(case_dir: Path, kind: str = SCENE, skip: Collection[Path] = ()) -> list[Path]:
+    """What a study owns in a directory: a scene directory's level dirs and report files, an
+    output directory's level dirs and every visible file, or everything visible but `skip`
+    (the sub-folders the study owns in their own right) and failed runs' dirs."""
+    if kind == WHOLE:
+        return [p for p in visible(case_dir) if p not in skip and not p.name.endswith(".failed")]
     return [p for p in sorted(case_dir.iterdir())
             if (p.is_dir() and LEVEL_DIR.fullmatch(p.name))
-            or (p.is_file() and (p.name in REPORT_FILES or (every_file and not p.name.startswith("."))))]
+            or (p.is_file() and (p.name in REPORT_FILES or (kind == OUTPUT and not p.name.startswith("."))))]
+
+
+def visible(directory: Path) -> list[Path]:
+    """Every item of `directory` but the hidden ones (its lock, backups, runs' temp dirs)."""
+    return [p for p in sorted(directory.iterdir()) if not p.name.startswith(".")]
 
 
 def restore(backup: Path, case_dir: Path) -> None:

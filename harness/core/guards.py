@@ -3,6 +3,7 @@ disk, and a solution must stay in the small-strain range the model assumes."""
 
 from __future__ import annotations
 
+import csv
 import enum
 import json
 import math
@@ -110,13 +111,56 @@ def check_not_shallower(case_dir: Path, levels: tuple[int, ...]) -> None:
     study, or writes elsewhere."""
     summary = case_dir / "summary.json"
     try:
-        recorded = [int(n) for n in json.loads(summary.read_text()).get("levels", [])]
+        facts = json.loads(summary.read_text())
+        recorded = [int(n) for n in facts.get("levels", [])]
     except (OSError, ValueError, TypeError, AttributeError):
         return  # no complete study there (or an unreadable one, which the transaction replaces)
+    if is_adaptive(facts):
+        raise SceneError(f"{case_dir} holds an adaptive study (`adapt`: adapt.csv, summary.json), which this "
+                         f"convergence study would replace; write elsewhere with --results DIR, or remove {case_dir} first")
     if recorded and levels and max(recorded) > max(levels):
         raise SceneError(f"{case_dir} holds a study to n = {max(recorded)} and this one stops at n = {max(levels)}: "
                          f"it would replace the finer study. Run levels {','.join(map(str, sorted(set(levels) | set(recorded))))}, "
                          f"write elsewhere with --results DIR, or remove {case_dir} first")
+
+
+def is_adaptive(summary: object) -> bool:
+    """Whether a summary.json's content is an adaptive study's (harness/studies/adapt.py)."""
+    return isinstance(summary, dict) and "bulk" in summary and "steps" in summary and "levels" not in summary
+
+
+def check_adapt_not_shallower(case_dir: Path, steps: int, max_dofs: int | None) -> None:
+    """Refuse an adaptive study that would replace a finer one already in `case_dir` (its
+    summary.json and adapt.csv), as check_not_shallower refuses a convergence study: one
+    allowed fewer steps, or one whose --max-dofs would stop it before the recorded study's last
+    step (a recorded step before the last has that many unknowns). A convergence study's
+    folder is refused too: the two would replace each other's summary.json."""
+    try:
+        facts = json.loads((case_dir / "summary.json").read_text())
+    except (OSError, ValueError):
+        return  # no complete study there (or an unreadable one, which the transaction replaces)
+    if isinstance(facts, dict) and "levels" in facts:
+        raise SceneError(f"{case_dir} holds a convergence study (summary.json with its levels), which this adaptive "
+                         f"study would replace; write elsewhere with --results DIR, or remove {case_dir} first")
+    if not is_adaptive(facts):
+        return
+    try:
+        recorded = int(facts["steps"])
+        with (case_dir / "adapt.csv").open() as table:
+            dofs = [int(float(row["dofs"])) for row in csv.DictReader(table)]
+    except (OSError, ValueError, TypeError, KeyError):
+        return  # its table is unreadable: nothing to compare with, the transaction replaces it
+    if not dofs:
+        return
+    what = f"{case_dir} holds an adaptive study of {recorded} steps (to {dofs[-1]:,} unknowns)"
+    fix = f"write elsewhere with --results DIR, or remove {case_dir} first"
+    if steps < recorded:
+        raise SceneError(f"{what} and this one stops at {steps}: it would replace the finer study. "
+                         f"Run --steps {recorded} or more, {fix}")
+    if max_dofs is not None and max(dofs[:-1], default=0) >= max_dofs:
+        first = next(i for i, d in enumerate(dofs, start=1) if d >= max_dofs)
+        raise SceneError(f"{what} and this one stops at step {first} (--max-dofs {max_dofs:,}): it would replace the "
+                         f"finer study. Run --max-dofs {dofs[-1]:,} or more, {fix}")
 
 
 def unknowns_per_node(effects: tuple[str, ...], dimension: int = 2) -> int:

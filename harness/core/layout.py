@@ -35,22 +35,32 @@ def results_root() -> Path:
 
 @dataclass(frozen=True)
 class Layout:
-    """results/<case>/{meshes/mesh_n<N>.msh, n<N>/, n<N>.failed/, convergence.*, summary.json}."""
+    """results/<case>/{meshes/mesh_n<N>.msh, n<N>/, n<N>.failed/, convergence.*, summary.json}.
+
+    `placed`: scenes whose directory is not results/<name> but the one given (a study's own
+    sub-folders: adapt's reference and uniform levels, under its case's folder); `stepped`:
+    scenes whose runs are an adaptive loop's steps, in step<N>/ (step<N>.failed/), a name no
+    level of any study takes."""
 
     results: Path = field(default_factory=results_root)
     freefem: Path = REPO / "freefem"
+    placed: tuple[tuple[str, Path], ...] = ()
+    stepped: tuple[str, ...] = ()
 
     def case_dir(self, case: str) -> Path:
-        return self.results / case
+        return dict(self.placed).get(case, self.results / case)
 
     def meshes_dir(self, case: str) -> Path:
         return self.case_dir(case) / "meshes"
 
+    def level_name(self, case: str, n: int) -> str:
+        return f"step{n}" if case in self.stepped else f"n{n}"
+
     def level_dir(self, case: str, n: int) -> Path:
-        return self.case_dir(case) / f"n{n}"
+        return self.case_dir(case) / self.level_name(case, n)
 
     def failed_dir(self, case: str, n: int) -> Path:
-        return self.case_dir(case) / f"n{n}.failed"
+        return self.case_dir(case) / f"{self.level_name(case, n)}.failed"
 
     def material_library(self) -> Path:
         return self.freefem / "materials"

@@ -21,6 +21,7 @@ from pathlib import Path
 
 import numpy as np
 
+from harness.core.atomic import write_atomic
 from harness.core.contract import BODY_LABEL, ROLE_LABELS
 from harness.mesh.simplex import SimplexMesh
 
@@ -103,17 +104,27 @@ def coarser_marker(path: Path) -> Path:
 
 
 def mark_coarser(path: Path, coarser: list[Path]) -> None:
-    marker = coarser_marker(path)
-    if coarser:
-        marker.write_text("".join(f"{c.resolve()}\n" for c in coarser))
-    else:
-        marker.unlink(missing_ok=True)
+    """Name `coarser` beside `path`; an empty list still marks it as a mesh no level rule
+    describes (the loop's first steps, nested in none): its multigrid has one level, and its
+    ranks follow its own node count (harness/run/launcher.py level_capacity), not its label's.
+    Written whole (a study's backup holds the earlier marker as a hard link)."""
+    write_atomic(coarser_marker(path), "".join(f"{c.resolve()}\n" for c in coarser))
 
 
 def marked_coarser(path: Path) -> list[Path] | None:
-    """The coarser meshes `mark_coarser` named for `path`, or None when it named none."""
+    """The coarser meshes `mark_coarser` named for `path` (maybe none), or None when it marked
+    nothing: a level of the scene's own family."""
     marker = coarser_marker(path)
     return [Path(line) for line in marker.read_text().splitlines() if line] if marker.exists() else None
+
+
+def node_count(path: Path) -> int:
+    """The number of nodes of a mesh file this module wrote, read from its $Nodes header alone."""
+    with path.open() as lines:
+        for line in lines:
+            if line.strip() == "$Nodes":
+                return int(next(lines))
+    raise ValueError(f"{path}: no $Nodes section")
 
 
 def read_msh(path: Path) -> SimplexMesh:

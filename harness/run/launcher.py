@@ -34,6 +34,7 @@ from harness.core.contract import Failure
 from harness.core.errors import RunError, SceneError
 from harness.core.guards import geometry_depth, level_nodes
 from harness.scene.linear_solvers import accepting
+from harness.mesh.msh import marked_coarser, node_count
 
 MPI_PLUGIN_PATH = "/usr/lib/freefem++/mpi"  # plugins built against MPI (the others abort in FreeFem++-mpi)
 IDP_PATH = "/usr/include/freefem++/idp"  # macro_ddm.idp, from Debian's libfreefem++-dev
@@ -82,20 +83,25 @@ def ranks_of(scene: Any) -> Ranks:
 NODES_PER_RANK = 9
 
 
-def level_capacity(scene: Any, n: int) -> int:
-    """The most ranks level n of the scene can be split over (1: only the sequential scheme)."""
+def level_capacity(scene: Any, n: int, mesh: Path | None = None) -> int:
+    """The most ranks level n of the scene can be split over (1: only the sequential scheme).
+    `mesh`, when it is one no level rule describes (an adaptive step's, harness/mesh/msh.py
+    mark_coarser): its own node count, its n being only a label (the step's number)."""
     geometry = scene.geometry
-    nodes = level_nodes(geometry.width, geometry.height, n, "P1", geometry_depth(geometry),
-                        getattr(geometry, "nodes_at", None))
+    if mesh is not None and marked_coarser(mesh) is not None:
+        nodes = node_count(mesh)
+    else:
+        nodes = level_nodes(geometry.width, geometry.height, n, "P1", geometry_depth(geometry),
+                            getattr(geometry, "nodes_at", None))
     return max(1, nodes // NODES_PER_RANK)
 
 
-def level_scene(scene: Any, n: int) -> Any:
-    """The scene as level n runs it: on run.ranks, or on as many as the level can take
-    (down to one) when it is too small for them. A chain's coarse levels, each only the
+def level_scene(scene: Any, n: int, mesh: Path | None = None) -> Any:
+    """The scene as level n (on `mesh`) runs it: on run.ranks, or on as many as the level can
+    take (down to one) when it is too small for them. A chain's coarse levels, each only the
     start of the next, so run; a level asked for is checked first (check_level_ranks)."""
     ranks = scene.sections.run.ranks
-    return scene if ranks == 1 else scene.on_ranks(min(ranks, level_capacity(scene, n)))
+    return scene if ranks == 1 else scene.on_ranks(min(ranks, level_capacity(scene, n, mesh)))
 
 
 def check_level_ranks(scene: Any, n: int) -> str | None:

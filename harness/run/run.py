@@ -87,7 +87,7 @@ class LevelRun:
     def __init__(self, scene: Scene, mesh: Path, n: int, layout: Layout, force: bool = False) -> None:
         check_solver_files(scene, layout)
         launcher.check_parallel(scene)
-        scene = launcher.level_scene(scene, n)  # on as many of run.ranks as the level can take
+        scene = launcher.level_scene(scene, n, mesh)  # on as many of run.ranks as the level can take
         self.scene, self.mesh, self.n, self.layout, self.force = scene, mesh, n, layout, force
         self.work: Path | None = None
         self.launched: freefem.Launched | None = None
@@ -178,7 +178,7 @@ class LevelRun:
 
     def _new_work_dir(self) -> Path:
         final = self.layout.level_dir(self.scene.name, self.n)
-        work = final.with_name(f"{RUN_TEMP_PREFIX}n{self.n}-{uuid.uuid4().hex[:8]}")
+        work = final.with_name(f"{RUN_TEMP_PREFIX}{final.name}-{uuid.uuid4().hex[:8]}")
         work.mkdir(parents=True)
         CHILDREN.add_dir(work)  # removed on a signal, whichever thread owns it
         return work

@@ -50,6 +50,29 @@ MULTIGRID_ON_RANKS = (f"{MULTIGRID_KRYLOV} -mg_levels_pc_type bjacobi -mg_levels
                       " -matptap_via allatonce")
 
 
+# Options only a solve across ranks reads: the plugin hands -matptap_via on to the Galerkin
+# products of a multigrid over the ranks (freefem/petsc_solver.cpp); the one-rank scheme forms
+# its products with PETSc's sequential algorithms, which never read it, and its check of unread
+# options would blame it. A level too small for run.ranks runs there without them.
+RANKS_ONLY = ("-matptap_via",)
+
+
+def one_rank_options(options: str) -> str:
+    """`options` without RANKS_ONLY's (each with its value), for a level run on one rank."""
+    words = options.split()
+    kept: list[str] = []
+    skip = False
+    for i, word in enumerate(words):
+        if skip:
+            skip = False
+            continue
+        if word in RANKS_ONLY:
+            skip = i + 1 < len(words) and not words[i + 1].startswith("-")
+            continue
+        kept.append(word)
+    return " ".join(kept)
+
+
 def option_pairs(options: str) -> list[tuple[str, str]]:
     words = options.split()
     return list(zip(words, words[1:]))

@@ -16,7 +16,7 @@ from harness.core.errors import SceneError
 from harness.core.layout import case_path
 from harness.scene.floating import check_floating
 from harness.scene.linear_solvers import LinearSolver, Memory, solver
-from harness.scene.petsc_options import default_options
+from harness.scene.petsc_options import RANKS_ONLY, default_options, one_rank_options
 from harness.scene.box import Box, parse_box
 from harness.scene.gmsh_geometry import GmshGeometry, parse_gmsh
 from harness.scene.poling import Poling, default_axis, parse_poling
@@ -200,8 +200,13 @@ class Scene:
         small for the scene's ranks runs on fewer (harness/run/launcher.py level_scene)."""
         if count == self.sections.run.ranks:
             return self
-        table = {**self.table, "run": {**self.table["run"], "ranks": count}}
-        sections = dataclasses.replace(self.sections, run=dataclasses.replace(self.sections.run, ranks=count))
+        run: dict[str, Any] = {"ranks": count}
+        given = self.sections.run.petsc_options
+        if count == 1 and set(given.split()) & set(RANKS_ONLY):
+            # Blank options follow the ranks (default_options); given ones lose what one rank never reads.
+            run["petsc_options"] = one_rank_options(given)
+        table = {**self.table, "run": {**self.table["run"], **run}}
+        sections = dataclasses.replace(self.sections, run=dataclasses.replace(self.sections.run, **run))
         return dataclasses.replace(self, table=table, sections=sections)
 
     @property

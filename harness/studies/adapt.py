@@ -1,5 +1,7 @@
 """`python -m harness adapt CASE`: adaptive refinement driven by the a posteriori error
 estimate, in 2D and 3D (docs/adaptivity.md), into results/adapt/<case>/.
+Its runs are under that folder too: the steps' in step<i>/, the reference's in reference/, the
+uniform levels' in uniform/.
 
 Each step solves on the refinement of the step before: Dörfler marking of the recovery
 estimate (--bulk), newest-vertex bisection in 2D, longest-edge bisection in 3D. The true error
@@ -20,6 +22,7 @@ import argparse
 import math
 import os
 import sys
+from dataclasses import replace
 from pathlib import Path
 
 import numpy as np
@@ -33,11 +36,13 @@ from harness.measure.fields import read_fields
 from harness.core.layout import Layout
 from harness.measure.norm_table import FIELD_NAMES, error_label
 from harness.core.errors import EnvironmentFault
+from harness.core.guards import check_adapt_not_shallower
 from harness.measure.run_checks import failed_checks, print_checks
-from harness.study.pipeline import Guarded, Plan, run_pipeline, scene_of
+from harness.study.pipeline import Guarded, Plan, check_level_memory, level_dofs, run_pipeline, scene_of
 from harness.measure.rates import slope_fit
 from harness.run.run import check_solver_files
-from harness.core.writers import PRECISE_CSV_FORMAT, write_csv, write_json
+from harness.scene.scene import Scene
+from harness.core.writers import PRECISE_CSV_FORMAT, write_csv, write_json, write_with
 
 
 def bulk_fraction(text: str) -> float:
@@ -50,16 +55,41 @@ def bulk_fraction(text: str) -> float:
     return value
 
 
+# The fewest steps that give a rate: it is fitted over the later half of the steps, and a
+# line needs two points.
+MIN_STEPS = 3
+
+
+def step_count(text: str) -> int:
+    value = positive_int(text)
+    if value < MIN_STEPS:
+        raise argparse.ArgumentTypeError(f"{text!r} steps give no rate in N: it is fitted over the later half of "
+                                         f"the steps, which needs at least {MIN_STEPS} steps")
+    return value
+
+
 def add_arguments(parser: argparse.ArgumentParser) -> None:
     add_case(parser)
-    parser.add_argument("--steps", type=positive_int, default=12,
-                        help="solves at most, the first on the case's coarsest mesh (default 12)")
+    parser.add_argument("--steps", type=step_count, default=12,
+                        help=f"solves at most, the first on the case's coarsest mesh (at least {MIN_STEPS}: the "
+                             "rate is fitted over the later half of them; default 12)")
     parser.add_argument("--bulk", type=bulk_fraction, default=DEFAULT_BULK,
                         help="Dörfler's fraction: refine the fewest cells that hold this share of the "
                              f"squared estimate (0 < bulk <= 1; 1 refines everything; default {DEFAULT_BULK})")
     parser.add_argument("--max-dofs", type=positive_int, default=None,
                         help="stop after the first step with at least this many unknowns")
     add_common(parser)
+
+
+def study_layout(results: Path, freefem: Path, name: str) -> Layout:
+    """results/adapt/<case>/, everything of the study under it, so that none of it meets a
+    convergence study's levels (n<N>/) or another case's folder (a case named <case>_uniform):
+    the report (adapt.csv, uniform.csv, summary.json, adapt.png, mesh.png), step<i>/ per step,
+    meshes/ (the first level's, every step's and the reference's), and reference/ and uniform/,
+    each a scene directory of its own (n<N>/; uniform/meshes/)."""
+    out = results / name
+    return Layout(results=results, freefem=freefem, stepped=(name,),
+                  placed=((f"{name}_reference", out / "reference"), (f"{name}_uniform", out / "uniform")))
 
 
 def rate_in_dofs(dofs: pd.Series, errors: pd.Series, dimension: int) -> float:
@@ -77,12 +107,17 @@ def run(args: argparse.Namespace) -> int:
     scene = scene_of(args.case, adaptive)
     reference_scene = scene_of(args.case, [*adaptive, f'scene.name="{scene.name}_reference"'])
     uniform_scene = scene_of(args.case, [*args.overrides, f'scene.name="{scene.name}_uniform"'])
-    layout = Layout(results=args.results / "adapt", freefem=args.freefem)
+    layout = study_layout(args.results / "adapt", args.freefem, scene.name)
     out = layout.case_dir(scene.name)
-    plan = Plan(layout.results, (Guarded(scene, (scene.levels[0],)), Guarded(uniform_scene)),
-                scene_dirs=(out,), ignore_memory=args.ignore_memory,
-                locked=(layout.case_dir(reference_scene.name), layout.case_dir(uniform_scene.name)))
+    # The uniform levels are guarded once the reference says which of them are run (the
+    # coarsest here, for its warnings and ranks). The study owns its folder whole (its steps'
+    # meshes are made from its runs: an interrupted study must leave the earlier ones as they
+    # were), and the reference's and uniform levels' folders in it as scene directories.
+    plan = Plan(layout.results, (Guarded(scene, (scene.levels[0],)), Guarded(uniform_scene, (scene.levels[0],))),
+                whole=(out,), ignore_memory=args.ignore_memory,
+                scene_dirs=(layout.case_dir(reference_scene.name), layout.case_dir(uniform_scene.name)))
     print(f"adapt {scene.name}: up to {args.steps} steps, bulk {args.bulk}, into {out}", file=sys.stderr)
+    check_adapt_not_shallower(out, args.steps, args.max_dofs)
 
     def runs() -> tuple[Adaptation, dict]:
         check_solver_files(scene, layout)
@@ -92,8 +127,17 @@ def run(args: argparse.Namespace) -> int:
                            memory_guard=not args.ignore_memory)
         # Without a reference (it would not fit) a real scene's uniform levels have nothing to be measured against.
         measured = scene.manufactured or adaptation.reference is not None
-        uniform = uniform_runs(uniform_scene, layout, tuple(scene.levels), args.force, quiet) if measured else {}
-        return adaptation, uniform
+        levels = tuple(scene.levels) if scene.manufactured or not measured else \
+            uniform_levels_below(uniform_scene, adaptation.reference.record.dofs)
+        if not measured or not levels:
+            return adaptation, {}
+        if not args.ignore_memory:
+            try:
+                check_level_memory(uniform_scene, levels)
+            except EnvironmentFault as exc:  # as a step that would not fit: the steps reported, then exit 4
+                print(exc, file=sys.stderr)
+                return replace(adaptation, refused=str(exc)), {}
+        return adaptation, uniform_runs(uniform_scene, layout, levels, args.force, quiet)
 
     def report(result: tuple[Adaptation, dict]) -> None:
         adaptation, uniform = result
@@ -157,16 +201,22 @@ def run(args: argparse.Namespace) -> int:
         }
         band = list(scene.sections.study.adaptive_band)
         summary["adaptive_band"] = band
-        summary["slope_of_estimate"] = {f: scene.dimension * v for f, v in summary["rate_in_dofs"]["adaptive_estimate"].items()}
+        # Fewer than two steps in the later half (the loop stopped at --max-dofs or the memory
+        # guard after one or two): no slope, and none to judge.
+        summary["slope_of_estimate"] = None if len(later) < 2 else {
+            f: scene.dimension * v for f, v in summary["rate_in_dofs"]["adaptive_estimate"].items()}
         judged["summary"] = summary
         write_json(summary, out / "summary.json")
-        plot_adapt(table, flat, fields, summary, out / "adapt.png")
-        plot_mesh(adaptation.steps[-1].mesh, out / "mesh.png", scene.name)
+        # Each plot drawn to a temp name and moved over its own: the study's backup holds the
+        # earlier one as a hard link, which a write in place would change too.
+        write_with(lambda tmp: plot_adapt(table, flat, fields, summary, tmp), out / "adapt.png")
+        write_with(lambda tmp: plot_mesh(adaptation.steps[-1].mesh, tmp, scene.name), out / "mesh.png")
         print(table[["step", "dofs", *[f"eta_{f}" for f in fields], *[f"err_{f}" for f in fields],
                      "newton_iterations"]].to_string(index=False, float_format=lambda v: f"{v:.4g}"))
         rates = summary["rate_in_dofs"]
         print("rates in N (optimal {:.2f}): adaptive {} (its estimate {}); uniform {}".format(
-            rates["optimal"], *(", ".join(f"{f} {v:.2f}" for f, v in rates[k].items())
+            rates["optimal"], *(", ".join(f"{f} {v:.2f}" if math.isfinite(v) else f"{f} none"
+                                          for f, v in rates[k].items())
                                 for k in ("adaptive", "adaptive_estimate", "uniform"))))
 
     def verdict(result: tuple[Adaptation, dict]) -> str | None:
@@ -183,8 +233,13 @@ def run(args: argparse.Namespace) -> int:
             raise EnvironmentFault(adaptation.refused)
         summary = judged.get("summary") or {}
         band = summary.get("adaptive_band") or []
-        outside = [f"{f} {v:.3f}" for f, v in summary.get("slope_of_estimate", {}).items()
-                   if band and not band[0] <= v <= band[1]]
+        slopes = summary.get("slope_of_estimate")
+        if slopes is None:
+            print(f"warning: {scene.name}: the loop stopped after {summary.get('steps')} of {args.steps} steps, too few "
+                  f"for a slope of the estimate (it is fitted over the later half of the steps, which needs two): "
+                  f"[study] adaptive_band {band} is not judged", file=sys.stderr)
+            slopes = {}
+        outside = [f"{f} {v:.3f}" for f, v in slopes.items() if band and not band[0] <= v <= band[1]]
         if outside:
             return (f"{scene.name}: adaptive slope against N^(-1/{scene.dimension}) outside the band "
                     f"[{band[0]}, {band[1]}]: " + ", ".join(outside))
@@ -193,6 +248,14 @@ def run(args: argparse.Namespace) -> int:
     judged: dict = {}
     run_pipeline(plan, runs, report, verdict)
     return 0
+
+
+def uniform_levels_below(scene: Scene, dofs: int) -> tuple[int, ...]:
+    """The scene's uniform levels with fewer unknowns than the reference's `dofs` (counted before
+    they are meshed, pipeline.level_dofs): a level at least as fine as the reference cannot be
+    measured against it, so it is not run (disc_pad's n = 16 has 907,145 unknowns, its
+    reference 804,575; paper3d's levels reach n = 64, about 11 GB)."""
+    return tuple(n for n in scene.levels if level_dofs(scene, n) < dofs)
 
 
 def matching_uniform(table: pd.DataFrame, flat: pd.DataFrame, fields: tuple[str, ...]) -> dict:
@@ -243,7 +306,7 @@ def plot_adapt(table: pd.DataFrame, flat: pd.DataFrame, fields: tuple[str, ...],
     figure.suptitle(f"{summary['case']}: error against unknowns (optimal rate {rates['optimal']:.2f})")
     figure.tight_layout()
     path.parent.mkdir(parents=True, exist_ok=True)
-    figure.savefig(path, dpi=110)
+    figure.savefig(path, format="png", dpi=110)
     plt.close(figure)
 
 
@@ -267,5 +330,5 @@ def plot_mesh(mesh: Path, path: Path, name: str) -> None:
     ax.set_aspect("equal")
     ax.set_title(title)
     figure.tight_layout()
-    figure.savefig(path, dpi=130)
+    figure.savefig(path, format="png", dpi=130)
     plt.close(figure)

@@ -271,7 +271,8 @@ def adapt(scene: Scene, reference_scene: Scene | None, layout: Layout, steps: in
     if reference_refused:
         announce(reference_refused)
         return Adaptation(done, None, None, refused or reference_refused)
-    reference_mesh = layout.meshes_dir(reference_scene.name) / "reference.msh"
+    # Beside the steps' meshes: made from them, it is the study's as theirs are.
+    reference_mesh = layout.meshes_dir(scene.name) / "reference.msh"
     write_step(finest, reference_mesh)
     mark_coarser(reference_mesh, multigrid_chain(finest, done, nodes, reference_scene.multigrid_levels))
     announce(f"reference: the last mesh refined uniformly ({len(finest.cells)} cells)")

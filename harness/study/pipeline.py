@@ -28,7 +28,7 @@ from harness.core.atomic import StudyTransaction
 from harness.core.errors import MeshError, SceneError, VerdictError
 from harness.core.faults import check_results_root, naming
 from harness.core.guards import (Slope, check_memory, check_nested, check_not_shallower, check_slope_levels,
-                                 geometry_depth, mesh_file_bytes, need_disk)
+                                 geometry_depth, memory_estimate, mesh_file_bytes, need_disk)
 from harness.run.launcher import check_level_ranks
 from harness.mesh.mesh import on_grid_blocks
 from harness.scene.blocks import check_on_grid
@@ -56,15 +56,17 @@ class Plan:
     """What a study guards and owns. `results`: the root it writes under; `scene_dirs`: the
     scene directories it writes a convergence report into; `outputs`: the directories whose
     every file is its (tables, Markdown, plots); `locked`: directories its runs write into
-    that it does not own (`solve`'s scene: locked, not restored); `nested`: whether it
-    compares levels (a convergence study), so they must be nested; `ignore_memory`: the
-    memory guard's override."""
+    that it does not own (`solve`'s scene: locked, not restored); `whole`: directories it
+    owns with everything in them (adapt's case folder: its steps, meshes, reference and
+    uniform levels); `nested`: whether it compares levels (a convergence study), so they must
+    be nested; `ignore_memory`: the memory guard's override."""
 
     results: Path
     guarded: tuple[Guarded, ...] = ()
     scene_dirs: tuple[Path, ...] = ()
     outputs: tuple[Path, ...] = ()
     locked: tuple[Path, ...] = ()
+    whole: tuple[Path, ...] = ()
     nested: bool = False
     ignore_memory: bool = False
 
@@ -106,9 +108,7 @@ def check_guards(plan: Plan) -> None:
             if fewer:
                 print(f"warning: {fewer}", file=sys.stderr)
         if not plan.ignore_memory:
-            check_memory(scene.geometry.width, scene.geometry.height, levels, scene.effects, scene.element,
-                         depth=geometry_depth(scene.geometry), factorises=scene.factorises,
-                         multigrid=scene.multigrid_levels > 0, nodes_at=getattr(scene.geometry, "nodes_at", None))
+            check_level_memory(scene, levels)
         mesh_bytes += sum(mesh_file_bytes(scene.geometry, n) for n in levels)
     # The meshes are the one part of a study's output whose size is known before it runs: a
     # disk that cannot hold them cannot hold the study (each mesh is checked again when made).
@@ -127,6 +127,23 @@ def check_blocks_on_grid(scene: Scene, n: int) -> None:
         raise SceneError(f"{scene.source}: {exc}") from None
 
 
+def check_level_memory(scene: Scene, levels: tuple[int, ...]) -> None:
+    """The memory guard of a scene's levels (guards.check_memory), an EnvironmentFault (exit 4)
+    when the finest would not fit; also for levels a study chooses once it has run (adapt's
+    uniform levels, known only when its reference is)."""
+    check_memory(scene.geometry.width, scene.geometry.height, levels, scene.effects, scene.element,
+                 depth=geometry_depth(scene.geometry), factorises=scene.factorises,
+                 multigrid=scene.multigrid_levels > 0, nodes_at=getattr(scene.geometry, "nodes_at", None))
+
+
+def level_dofs(scene: Scene, n: int) -> int:
+    """The unknowns of the scene's uniform level n as the memory guard counts them, before it
+    is meshed (guards.level_nodes): exact for a structured level and a gmsh scene's split one, an
+    estimate for an unstructured or remeshed one."""
+    return memory_estimate(scene.geometry.width, scene.geometry.height, n, scene.effects, scene.element,
+                           geometry_depth(scene.geometry), nodes_at=getattr(scene.geometry, "nodes_at", None))[0]
+
+
 def run_pipeline(plan: Plan, runs: Callable[[], R], report: Callable[[R], object],
                  verdict: Callable[[R], str | None] = lambda _: None) -> R:
     """Guards, then the runs and the report inside one transaction, then the verdict: a
@@ -134,11 +151,11 @@ def run_pipeline(plan: Plan, runs: Callable[[], R], report: Callable[[R], object
     (a verdict with another exit code raises its own error: crosscheck's 6 and 3)."""
     announce(plan.results)
     check_guards(plan)
-    transaction = StudyTransaction(*plan.scene_dirs, outputs=plan.outputs, locked=plan.locked)
+    transaction = StudyTransaction(*plan.scene_dirs, outputs=plan.outputs, locked=plan.locked, whole=plan.whole)
     with transaction:
         result = runs()
         # A write that names no file of its own is said to be in the study's first directory.
-        with naming(next(iter((*plan.outputs, *plan.scene_dirs)), plan.results)):
+        with naming(next(iter((*plan.whole, *plan.outputs, *plan.scene_dirs)), plan.results)):
             report(result)
     for path in transaction.swept_after:
         print(f"warning: {path}: the temp dir of a run whose process died during the study (a killed Dask "
