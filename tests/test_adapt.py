@@ -195,14 +195,14 @@ def test_the_loop_reads_the_per_region_estimate_of_a_multi_region_scene(tmp_path
     assert summary["errors_against"] == "the exact fields"
     out = tmp_path / "results" / "adapt" / "mms_interface"
     for step in table["step"]:
-        record = read_run_json(out / f"n{step}")
+        record = read_run_json(out / f"step{step}")
         row = table.set_index("step").loc[step]
         combined = 0.0
         for field in ("u", "phi", "theta"):
             assert row[f"eta_{field}"] == pytest.approx(record.estimator[field], rel=1e-9)  # the CSV's 10 digits
             combined += (record.estimator[field] / record.estimator_norms[field]) ** 2
         mesh = read_start(out / "meshes" / f"adapt_{step}.msh", 2)
-        indicator = indicator_on(mesh, out / f"n{step}" / "solution.vtu")
+        indicator = indicator_on(mesh, out / f"step{step}" / "solution.vtu")
         assert float(np.sum(indicator ** 2)) == pytest.approx(combined, rel=1e-10)
     for field in ("u", "phi", "theta"):
         effectivity = table[f"eta_{field}"] / table[f"err_{field}"]
