@@ -50,6 +50,37 @@ def plot_convergence(study: Study, target: Path) -> None:
     fig.savefig(target, format="png", dpi=120)
 
 
+def plot_quantities(scene: str, values: pd.DataFrame, studied: Mapping[str, Any], target: Path) -> None:
+    """Each quantity's relative error against its extrapolated value (harness/measure/quantity_study.py),
+    against the unknowns and against each level's wall time: the price of each digit. A
+    quantity that is not extrapolable has no error to draw; the title counts them."""
+    fig = Figure(figsize=(11, 4.8))
+    axes = fig.subplots(1, 2)
+    drawn = [name for name, q in studied.items() if q.relative_errors and q.status == "extrapolated"]
+    for name in drawn:
+        q = studied[name]
+        levels = sorted(q.relative_errors)
+        rows = values.set_index("n").loc[levels]
+        errors = np.array([q.relative_errors[n] for n in levels], dtype=float)
+        shown = errors > 0  # the finest level's error can be 0 to round-off: nothing to draw in log scale
+        for ax, column in zip(axes, ("dofs", "wall_s")):
+            ax.loglog(rows[column].to_numpy(dtype=float)[shown], errors[shown], "-o", markersize=4,
+                      label=f"{name}, order {q.order:.2f}")
+    left_out = [name for name in studied if name not in drawn]
+    for ax, label in zip(axes, ("unknowns (dofs)", "wall time of the level [s]")):
+        ax.set_xlabel(label)
+        ax.set_ylabel("|Q_n - Q_ext| / |Q_ext| (Richardson, three finest levels)")
+        ax.grid(True, which="both", alpha=0.3)
+        if drawn:
+            ax.legend(fontsize=7)
+    title = f"{scene}: each quantity's error against its extrapolated value"
+    if left_out:
+        title += f"\nnot drawn (not extrapolated): {', '.join(left_out)}"
+    fig.suptitle(title, fontsize=9)
+    fig.tight_layout()
+    fig.savefig(target, format="png", dpi=120)
+
+
 def add_slope_guide(ax: Axes, h: np.ndarray, total: np.ndarray) -> None:
     """A slope-1 line from the coarsest total error, halved so it never hides the data."""
     if len(h) and np.isfinite(total[0]) and total[0] > 0:
