@@ -1,0 +1,161 @@
+"""The quantities an engineer reads (harness/scene/quantities.py's table, docs/quantities.md):
+every run writes them into run.json from the keys the table names, a case's probes and averages
+read known answers in 2D and 3D, a probe outside the body is refused before anything runs,
+contact.csv holds the contact state along Gamma_3, and a study writes each quantity's
+convergence, never extrapolating a triple that is not asymptotic."""
+
+from __future__ import annotations
+
+import json
+import math
+from pathlib import Path
+
+import pandas as pd
+import pytest
+
+from harness.cli import main
+from harness.measure.quantity_study import (CONVERGED, EXTRAPOLATED, NOT_EXTRAPOLABLE, TOO_FEW, converge)
+from harness.scene.quantities import BUILT_IN, read_source
+from harness.scene.scene import load_scene
+from harness.core.errors import SceneError
+
+ROOT = Path(__file__).parents[1]
+DATA = ROOT / "tests" / "data"
+PAPER = ROOT / "cases" / "paper.toml"
+LINEAR = DATA / "linear_probes.toml"
+LINEAR_3D = DATA / "linear_probes3d.toml"
+# A P1 solution of a linear (or constant) manufactured field is that field: what is left is the
+# direct solve's and Newton's round-off, ~1e-15 of the field (measured: 1e-15 in 2D, 1e-14 in 3D).
+EXACT = 1e-12
+
+
+def run_json(results: Path, scene: str, n: int) -> dict:
+    return json.loads((results / scene / f"n{n}" / "run.json").read_text())
+
+
+def test_a_probe_reads_a_linear_field_exactly_and_an_average_a_constant_in_2d(tmp_path):
+    assert main(["solve", str(LINEAR), "--n", "4", "--results", str(tmp_path)]) == 0
+    q = run_json(tmp_path, "linear_probes", 4)["quantities"]
+    assert q["tip_uy"] == pytest.approx(1e-8 * (0.5 * 3.3 - 0.7 + 0.25), rel=EXACT)
+    assert q["theta_mid"] == pytest.approx(1e-3 * (0.5 + 1.7 - 0.3 * 0.35), rel=EXACT)
+    assert q["phi_top"] == pytest.approx(7.0, rel=EXACT)
+    # theta over both clamped sides, x = 0 and x = 4: the mean of 1e-3 (0.5 + x - 0.3 y) is at (2, 0.5)
+    assert q["theta_left"] == pytest.approx(1e-3 * (0.5 + 2.0 - 0.15), rel=EXACT)
+
+
+def test_probes_and_averages_read_known_answers_in_3d(tmp_path):
+    assert main(["solve", str(LINEAR_3D), "--n", "2", "--results", str(tmp_path)]) == 0
+    q = run_json(tmp_path, "linear_probes3d", 2)["quantities"]
+    assert q["uz_inside"] == pytest.approx(1e-8 * (0.3 * 0.65 - 0.2 * 1.3), rel=EXACT)
+    assert q["theta_inside"] == pytest.approx(1e-3 * (0.5 + 0.7 - 0.06 + 0.63), rel=EXACT)
+    assert q["phi_top"] == pytest.approx(7.0, rel=EXACT)
+    assert q["theta_top"] == pytest.approx(1e-3 * (0.5 + 1.0 - 0.15 + 0.7), rel=EXACT)  # z = 1, at the face's centre
+
+
+def refused(tmp_path: Path, capsys, case: Path, probe: str, n: int = 4) -> str:
+    code = main(["solve", str(case), "--n", str(n), "--results", str(tmp_path), "--set", f"quantities.probes=[{probe}]"])
+    err = capsys.readouterr().err.strip().splitlines()
+    assert code == 2
+    assert len(err) == 1 and err[0].startswith("error:")
+    assert str(case) in err[0] and "'far'" in err[0] and "outside the body" in err[0]
+    return err[0]
+
+
+def test_a_probe_outside_a_rectangle_is_refused_before_anything_runs(tmp_path, capsys):
+    refused(tmp_path, capsys, LINEAR, '{name="far", field="u_y", at=[4.5, 0.5]}')
+    assert not (tmp_path / "linear_probes").exists()  # nothing meshed, nothing run
+
+
+def test_a_probe_outside_a_gmsh_body_but_inside_its_bounding_box_is_refused_by_the_mesh(tmp_path, capsys):
+    """The block turned by 30 degrees spans (-0.5, 0) to (1.73, 1.87); (1.6, 0.1) lies below its
+    base (y = x tan 30 = 0.92 there), outside the body but inside that box."""
+    line = refused(tmp_path, capsys, DATA / "tilted_block.toml", '{name="far", field="u_y", at=[1.6, 0.1]}', n=2)
+    assert "mesh of level n=2" in line
+    assert not list((tmp_path / "tilted_block").glob("n2*"))  # no run started
+
+
+@pytest.mark.parametrize("probe, complaint", [
+    ('{name="p", field="u_z", at=[1.0, 0.5]}', "the scene has no field 'u_z'"),
+    ('{name="p", field="u_y", at=[1.0, 0.5, 0.2]}', "must be a point of 2 coordinates"),
+    ('{name="max_theta", field="u_y", at=[1.0, 0.5]}', "the name is taken"),
+    ('{name="p", field="u_y"}', "needs exactly the keys name, field, at"),
+])
+def test_a_bad_probe_is_refused_when_the_scene_loads(probe, complaint):
+    with pytest.raises(SceneError, match=complaint):
+        load_scene(LINEAR, [f"quantities.probes=[{probe}]"])
+
+
+def test_an_average_on_a_part_the_geometry_lacks_is_refused():
+    with pytest.raises(SceneError, match="must be a boundary role the geometry has"):
+        load_scene(LINEAR, ['quantities.averages=[{name="a", field="phi", on="contact"}]'])
+
+
+def test_a_case_without_quantities_keeps_its_scene_table():
+    """summary.json's scene table (and so every committed summary) is what it was before the
+    section existed."""
+    assert "quantities" not in load_scene(PAPER).table
+    assert "quantities" in load_scene(LINEAR).table
+
+
+def test_every_quantity_of_the_paper_scene_is_its_one_source_and_contact_csv_holds_gamma_3(tmp_path):
+    assert main(["solve", str(PAPER), "--n", "2", "--results", str(tmp_path)]) == 0
+    data = run_json(tmp_path, "paper", 2)
+    q = data["quantities"]
+    assert set(q) == {x.name for x in BUILT_IN}  # every effect is on; no electrode part
+    for quantity in BUILT_IN:  # one name per value: each quantity is its source's number
+        assert q[quantity.name] == read_source(quantity.source, data), quantity.name
+    table = pd.read_csv(tmp_path / "paper" / "n2" / "contact.csv")
+    assert list(table.columns) == ["x", "y", "gap", "contact_pressure", "tangential_traction", "slip",
+                                   "electric_conductance", "thermal_conductance"]
+    # Gamma_3 = [1, 3] x {0} at h = 1/2: its 5 nodes, ordered by position
+    assert table["x"].tolist() == [1.0, 1.5, 2.0, 2.5, 3.0] and (table["y"] == 0).all()
+    c_nu, k_e, eps_e = 1e7, 0.1, 1e-6  # cases/paper.toml
+    assert table["contact_pressure"].to_numpy() == pytest.approx(c_nu * (-table["gap"]).clip(lower=0).to_numpy(),
+                                                                 rel=1e-12)
+    conductance = k_e * (-table["gap"] / eps_e).clip(0, 1)
+    assert table["electric_conductance"].to_numpy() == pytest.approx(conductance.to_numpy(), rel=1e-12)
+    assert q["peak_contact_pressure"] == table["contact_pressure"].max()
+
+
+def test_a_study_writes_each_quantity_beside_its_convergence(tmp_path):
+    assert main(["convergence", str(LINEAR), "--levels", "2,4,8", "--results", str(tmp_path)]) in (0, 1)
+    case = tmp_path / "linear_probes"
+    values = pd.read_csv(case / "quantities.csv")
+    names = [q.name for q in load_scene(LINEAR).quantities]
+    assert list(values.columns) == ["n", "h", "dofs", "wall_s", *names]
+    assert values["n"].tolist() == [2, 4, 8]
+    assert (case / "quantities.png").stat().st_size > 0
+    summary = json.loads((case / "summary.json").read_text())["quantities"]
+    assert list(summary) == names
+    tip = summary["tip_uy"]  # exact on every level: converged to round-off, not extrapolated from noise
+    assert tip["status"] == CONVERGED and tip["levels"] == [8, 4, 2] and tip["gci"] == 0.0
+    assert tip["extrapolated"] == pytest.approx(1.2e-8, rel=EXACT)
+    assert set(tip["relative_errors"]) == {"2", "4", "8"}
+
+
+def test_a_quantity_converging_as_h_squared_is_extrapolated_to_its_limit():
+    values = {n: 3.0 + 5.0 / n**2 for n in (4, 8, 16, 32)}
+    q = converge("q", "m", values)
+    assert q.status == EXTRAPOLATED and q.levels == (32, 16, 8)
+    assert q.order == pytest.approx(2.0, rel=1e-9)
+    assert q.extrapolated == pytest.approx(3.0, rel=1e-12)
+    # Celik et al. eq. 9: 1.25 |f1 - f2| / |f1| / (r^p - 1)
+    f1, f2 = values[32], values[16]
+    assert q.gci == pytest.approx(1.25 * abs(f1 - f2) / f1 / 3.0, rel=1e-9)
+    assert q.relative_errors[4] == pytest.approx(5.0 / 16 / 3.0, rel=1e-9)
+
+
+@pytest.mark.parametrize("values, behaviour", [
+    ({4: 1.0, 8: 1.2, 16: 1.1, 32: 1.15}, "oscillatory"),   # the differences change sign
+    ({4: 1.0, 8: 1.01, 16: 1.03, 32: 1.07}, "divergent"),   # the differences grow
+])
+def test_a_quantity_that_is_not_asymptotic_is_never_extrapolated(values, behaviour):
+    q = converge("q", "m", values)
+    assert q.status == NOT_EXTRAPOLABLE and q.why.startswith(behaviour)
+    assert math.isnan(q.extrapolated) and math.isnan(q.order) and math.isnan(q.gci)
+    assert q.relative_errors == {}
+    assert q.summary()["extrapolated"] != q.summary()["extrapolated"]  # NaN: written as null in summary.json
+
+
+def test_two_levels_are_too_few():
+    assert converge("q", "m", {4: 1.0, 8: 1.1}).status == TOO_FEW
