@@ -159,3 +159,22 @@ def test_a_quantity_that_is_not_asymptotic_is_never_extrapolated(values, behavio
 
 def test_two_levels_are_too_few():
     assert converge("q", "m", {4: 1.0, 8: 1.1}).status == TOO_FEW
+
+
+@pytest.mark.parametrize("solver", ["petsc", "mumps"])
+def test_probes_and_contact_csv_on_two_ranks_are_those_of_one(tmp_path, solver):
+    """On 2 MPI ranks, with PETSc (the ranks write the outputs, gathering the fields onto rank 0)
+    and with the default solver (a sequential pass writes them): the probes are still exact and
+    contact.csv is one rank's to round-off (the 2-rank solve's, ~1e-13 of the field measured)."""
+    ranks = ["--set", "run.ranks=2", "--set", f"run.linear_solver={solver}"]
+    assert main(["solve", str(LINEAR), "--n", "8", "--results", str(tmp_path / "ranks"), *ranks]) == 0
+    q = run_json(tmp_path / "ranks", "linear_probes", 8)["quantities"]
+    assert q["tip_uy"] == pytest.approx(1e-8 * (0.5 * 3.3 - 0.7 + 0.25), rel=EXACT)
+    assert q["theta_left"] == pytest.approx(1e-3 * (0.5 + 2.0 - 0.15), rel=EXACT)
+    assert main(["solve", str(PAPER), "--n", "8", "--results", str(tmp_path / "ranks"), *ranks]) == 0
+    assert main(["solve", str(PAPER), "--n", "8", "--results", str(tmp_path / "one")]) == 0
+    many = pd.read_csv(tmp_path / "ranks" / "paper" / "n8" / "contact.csv")
+    one = pd.read_csv(tmp_path / "one" / "paper" / "n8" / "contact.csv")
+    assert list(many.columns) == list(one.columns) and len(many) == len(one) == 17
+    for column in one.columns:
+        assert many[column].to_numpy() == pytest.approx(one[column].to_numpy(), rel=1e-9, abs=1e-9 * one[column].abs().max())
