@@ -10,6 +10,7 @@ from typing import Any, Mapping, Protocol
 import numpy as np
 import pandas as pd
 from matplotlib.axes import Axes
+from matplotlib.ticker import NullFormatter
 from matplotlib.figure import Figure  # no pyplot: no global figure state, no GUI backend
 
 from harness.measure.norm_table import FIELD_NAMES, TOTAL, error_column, error_label, error_names, mms_norm
@@ -66,16 +67,21 @@ def plot_quantities(scene: str, values: pd.DataFrame, studied: Mapping[str, Any]
         for ax, column in zip(axes, ("dofs", "wall_s")):
             ax.loglog(rows[column].to_numpy(dtype=float)[shown], errors[shown], "-o", markersize=4,
                       label=f"{name}, order {q.order:.2f}")
-    left_out = [name for name in studied if name not in drawn]
     for ax, label in zip(axes, ("unknowns (dofs)", "wall time of the level [s]")):
         ax.set_xlabel(label)
-        ax.set_ylabel("|Q_n - Q_ext| / |Q_ext| (Richardson, three finest levels)")
+        ax.xaxis.set_minor_formatter(NullFormatter())  # a narrow range of times: minor labels overlap
+        ax.set_ylabel("|Q_n - Q_ext| / |Q_ext|  (Q_ext: Richardson, three finest levels)", fontsize=8)
         ax.grid(True, which="both", alpha=0.3)
         if drawn:
             ax.legend(fontsize=7)
+    for ax, column in zip(axes, ("dofs", "wall_s")):  # each level's own value as a tick: few decades are spanned
+        ticks = values[column].to_numpy(dtype=float)
+        ticks = np.unique(ticks[np.isfinite(ticks) & (ticks > 0)])
+        if drawn and len(ticks) < 10:
+            ax.set_xticks(ticks, [f"{s:.3g}" for s in ticks], fontsize=7, rotation=60)
     title = f"{scene}: each quantity's error against its extrapolated value"
-    if left_out:
-        title += f"\nnot drawn (not extrapolated): {', '.join(left_out)}"
+    for status in sorted({q.status for name, q in studied.items() if name not in drawn}):
+        title += f"\n{status} (not drawn): {', '.join(name for name, q in studied.items() if q.status == status)}"
     fig.suptitle(title, fontsize=9)
     fig.tight_layout()
     fig.savefig(target, format="png", dpi=120)
