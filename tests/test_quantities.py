@@ -178,3 +178,14 @@ def test_probes_and_contact_csv_on_two_ranks_are_those_of_one(tmp_path, solver):
     assert list(many.columns) == list(one.columns) and len(many) == len(one) == 17
     for column in one.columns:
         assert many[column].to_numpy() == pytest.approx(one[column].to_numpy(), rel=1e-9, abs=1e-9 * one[column].abs().max())
+
+
+def test_plot_draws_the_pressure_along_the_contact_and_refuses_a_run_without_one(tmp_path, capsys):
+    assert main(["solve", str(PAPER), "--n", "2", "--results", str(tmp_path)]) == 0
+    assert main(["plot", str(tmp_path / "paper"), "--view", "contact"]) == 0
+    assert (tmp_path / "paper" / "contact.png").read_bytes()[:4] == b"\x89PNG"
+    assert main(["solve", str(LINEAR), "--n", "2", "--results", str(tmp_path)]) == 0
+    capsys.readouterr()
+    assert main(["plot", str(tmp_path / "linear_probes"), "--view", "contact"]) == 2  # input: a run without contact
+    err = capsys.readouterr().err.strip().splitlines()
+    assert len(err) == 1 and "no contact.csv" in err[0]
