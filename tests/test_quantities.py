@@ -148,6 +148,9 @@ def test_a_quantity_converging_as_h_squared_is_extrapolated_to_its_limit():
 @pytest.mark.parametrize("values, behaviour", [
     ({4: 1.0, 8: 1.2, 16: 1.1, 32: 1.15}, "oscillatory"),   # the differences change sign
     ({4: 1.0, 8: 1.01, 16: 1.03, 32: 1.07}, "divergent"),   # the differences grow
+    # the paper scene's friction force on the zero branch at n = 4, 8, 16 [N/m]: monotone, but
+    # Richardson's value would be a magnitude below zero
+    ({4: 2.412e-4, 8: 8.836e-5, 16: 7.933e-6}, "overshoot"),
 ])
 def test_a_quantity_that_is_not_asymptotic_is_never_extrapolated(values, behaviour):
     q = converge("q", "m", values)

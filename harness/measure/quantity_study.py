@@ -8,7 +8,10 @@ Only an asymptotic triple is extrapolated: the three finest values must move one
 shrinking differences (0 < R = e21/e32 < 1, Celik et al.'s monotone convergence). Differences
 that change sign (oscillatory), grow (divergent) or vanish at one level only are reported as
 not extrapolable, with their behaviour, and never extrapolated: Richardson's formula assumes
-f = f_exact + C h^p with one p, which such a triple contradicts. Three values equal to
+f = f_exact + C h^p with one p, which such a triple contradicts. So is a monotone triple whose
+extrapolated value has the other sign than the finest level's: the levels fall too fast to be in
+the asymptotic range (the paper scene's friction force on the zero branch, 2.4e-4, 8.8e-5, 7.9e-6
+N/m at n = 4, 8, 16, extrapolates to -8.1e-5 N/m, a magnitude below zero). Three values equal to
 round-off (differences within ROUND_OFF of the value) are converged: the finest value itself,
 with a zero band (a P1 field that is exactly linear, a contact zone that ends at a node of every
 level).
@@ -96,6 +99,9 @@ def converge(name: str, unit: str, values: Mapping[int, float]) -> QuantityConve
                 "monotone": "one difference is zero"}.get(grid.behaviour, grid.behaviour)
         return outcome(NOT_EXTRAPOLABLE, f"{grid.behaviour}: {what} (R = e21/e32 = {ratio:.3g})",
                        convergence_ratio=ratio)
+    if grid.f_ext * f[0] < 0:
+        return outcome(NOT_EXTRAPOLABLE, f"overshoot: Richardson's value {grid.f_ext:.3g} has the other sign than "
+                       f"the finest level's {f[0]:.3g} (R = e21/e32 = {ratio:.3g})", convergence_ratio=ratio)
     return outcome(EXTRAPOLATED, "", order=grid.p, extrapolated=grid.f_ext, gci=grid.gci_fine,
                    gci_abs=grid.gci_fine_abs, convergence_ratio=ratio,
                    relative_errors=relative_errors(values, grid.f_ext))
