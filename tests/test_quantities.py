@@ -192,3 +192,21 @@ def test_plot_draws_the_pressure_along_the_contact_and_refuses_a_run_without_one
     assert main(["plot", str(tmp_path / "linear_probes"), "--view", "contact"]) == 2  # input: a run without contact
     err = capsys.readouterr().err.strip().splitlines()
     assert len(err) == 1 and "no contact.csv" in err[0]
+
+
+def test_a_failed_study_puts_back_the_earlier_quantities(tmp_path):
+    """quantities.csv and quantities.png are the study's files like convergence.csv: a study that
+    fails after writing them leaves the earlier ones (harness/core/atomic.py REPORT_FILES)."""
+    from harness.core.atomic import StudyTransaction
+
+    case = tmp_path / "paper"
+    case.mkdir()
+    for name in ("convergence.csv", "quantities.csv", "quantities.png"):
+        (case / name).write_text("earlier")
+    with pytest.raises(RuntimeError):
+        with StudyTransaction(case):
+            for name in ("convergence.csv", "quantities.csv", "quantities.png"):
+                (case / name).unlink()
+                (case / name).write_text("half of a later study")
+            raise RuntimeError("the later study failed")
+    assert all((case / name).read_text() == "earlier" for name in ("convergence.csv", "quantities.csv", "quantities.png"))
