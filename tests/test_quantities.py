@@ -210,3 +210,16 @@ def test_a_failed_study_puts_back_the_earlier_quantities(tmp_path):
                 (case / name).write_text("half of a later study")
             raise RuntimeError("the later study failed")
     assert all((case / name).read_text() == "earlier" for name in ("convergence.csv", "quantities.csv", "quantities.png"))
+
+
+def test_contact_csv_in_3d_has_a_row_per_node_of_gamma_3(tmp_path):
+    assert main(["solve", str(ROOT / "cases" / "paper3d.toml"), "--n", "2", "--results", str(tmp_path)]) == 0
+    table = pd.read_csv(tmp_path / "paper3d" / "n2" / "contact.csv")
+    assert list(table.columns) == ["x", "y", "z", "gap", "contact_pressure", "tangential_traction", "slip",
+                                   "electric_conductance", "thermal_conductance"]
+    # Gamma_3 = [1, 3] x [0, 1] x {0} at h = 1/2: 5 x 3 nodes, ordered by x, then y
+    assert len(table) == 15 and (table["z"] == 0).all()
+    assert list(zip(table["x"], table["y"]))[:4] == [(1.0, 0.0), (1.0, 0.5), (1.0, 1.0), (1.5, 0.0)]
+    q = run_json(tmp_path, "paper3d", 2)["quantities"]
+    assert q["peak_contact_pressure"] == table["contact_pressure"].max()
+    assert (table["tangential_traction"] >= 0).all()  # a magnitude in 3D
