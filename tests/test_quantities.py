@@ -68,10 +68,28 @@ def test_a_probe_outside_a_rectangle_is_refused_before_anything_runs(tmp_path, c
 
 def test_a_probe_outside_a_gmsh_body_but_inside_its_bounding_box_is_refused_by_the_mesh(tmp_path, capsys):
     """The block turned by 30 degrees spans (-0.5, 0) to (1.73, 1.87); (1.6, 0.1) lies below its
-    base (y = x tan 30 = 0.92 there), outside the body but inside that box."""
+    base (y = x tan 30 = 0.92 there), outside the body but inside that box. A study's levels run
+    side by side (the case starts each from the pressed state): the coarsest level's mesh, made
+    in memory by the guards, refuses it before any of them is meshed or run."""
     line = refused(tmp_path, capsys, DATA / "tilted_block.toml", '{name="far", field="u_y", at=[1.6, 0.1]}', n=2)
     assert "mesh of level n=2" in line
     assert not list((tmp_path / "tilted_block").glob("n2*"))  # no run started
+    code = main(["convergence", str(DATA / "tilted_block.toml"), "--levels", "2,4,8", "--results", str(tmp_path / "study"),
+                 "--set", 'quantities.probes=[{name="far", field="u_y", at=[1.6, 0.1]}]'])
+    err = capsys.readouterr().err.strip().splitlines()
+    assert code == 2 and len(err) == 1 and "'far'" in err[0] and "mesh of level n=2" in err[0]
+    assert not (tmp_path / "study").exists()  # nothing meshed, nothing run
+    # a point of the body itself is read
+    assert main(["solve", str(DATA / "tilted_block.toml"), "--n", "2", "--results", str(tmp_path),
+                 "--set", 'quantities.probes=[{name="mid", field="u_y", at=[0.5, 0.6]}]']) == 0
+    q = run_json(tmp_path, "tilted_block", 2)["quantities"]
+    assert math.isfinite(q["mid"])
+    # The free block pressed by 100 N/m^2 on its top (tests/data/tilted_block.toml) carries a uniform
+    # stress, which P1 represents exactly: the pressure is 100 N/m^2 at every node of its base of
+    # length 2, up to what the solve leaves: 1.3e-7 of it measured (Newton stops this case at
+    # relative increments of newton.rtol; the tilted mesh's coordinates are rounded), within 1e-6
+    assert q["peak_contact_pressure"] == pytest.approx(100.0, rel=1e-6)
+    assert q["contact_force_normal"] == pytest.approx(200.0, rel=1e-6)
 
 
 @pytest.mark.parametrize("probe, complaint", [

@@ -1,6 +1,6 @@
 """A run's quantities (the table of harness/scene/quantities.py): the case's probes and averages
-as main.edp's macros (freefem/quantities.idp), a probe refused when it lies outside the level's
-mesh, run.json's `quantities` read from the keys the table names, and contact.csv ordered by
+as main.edp's macros (freefem/quantities.idp), a probe refused when it lies outside a gmsh
+body's mesh (the study's coarsest level before anything runs, and each level before it runs), run.json's `quantities` read from the keys the table names, and contact.csv ordered by
 position."""
 
 from __future__ import annotations
@@ -16,6 +16,8 @@ import pandas as pd
 from harness.core.atomic import write_atomic
 from harness.core.contract import ROLE_MACROS
 from harness.core.errors import SceneError
+from harness.core.gmsh_api import GMSH
+from harness.mesh.mesh import checked_level
 from harness.scene.gmsh_geometry import GmshGeometry
 from harness.scene.quantities import read_source
 from harness.scene.scene import Scene
@@ -57,20 +59,39 @@ def inside_mesh(points: np.ndarray, cells: np.ndarray, at: np.ndarray, tol: floa
     return bool(np.any((lam >= -tol).all(axis=1) & (lam.sum(axis=1) <= 1 + tol)))
 
 
+def needs_mesh_check(scene: Scene) -> bool:
+    """Only a gmsh body's probes are checked against a mesh: a rectangle's or a box's were checked
+    against the body's extent, which is the body, when the scene loaded (harness/scene/quantities.py)."""
+    return bool(scene.probes) and isinstance(scene.geometry, GmshGeometry)
+
+
+def check_points(scene: Scene, points: np.ndarray, cells: np.ndarray, n: int) -> None:
+    """A SceneError naming the first probe outside level n's mesh, and the case file."""
+    for probe in scene.probes:
+        if not inside_mesh(points[:, :scene.dimension], cells, np.array(probe.at)):
+            raise SceneError(f"{scene.source}: quantities.probes {probe.name!r}: the point {probe.at} is outside "
+                             f"the body (the mesh of level n={n})")
+
+
+def check_probes_on_level(scene: Scene, n: int) -> None:
+    """The study's guard, before anything is meshed to disk or run: level n made in memory (the
+    coarsest of the study: quick) and every probe located in it."""
+    if not needs_mesh_check(scene):
+        return
+    with GMSH:
+        level, _, _ = checked_level(scene.geometry, n, warn=False)
+    check_points(scene, level.points, level.cells, n)
+
+
 def check_probes_in_mesh(scene: Scene, mesh: Path, n: int) -> None:
-    """A probe outside the level's mesh is refused before the level runs (SceneError naming the
-    probe and the case file). Only a gmsh body needs it: a rectangle's or a box's probes were
-    checked against the body's extent when the scene loaded (harness/scene/quantities.py)."""
-    if not scene.probes or not isinstance(scene.geometry, GmshGeometry):
+    """Each level again before it runs, in its own mesh file (a remeshed level is not the
+    coarsest's refinement)."""
+    if not needs_mesh_check(scene):
         return
     read = meshio.read(mesh)
     kind = "triangle" if scene.dimension == 2 else "tetra"
     cells = np.concatenate([block.data for block in read.cells if block.type == kind])
-    points = read.points[:, :scene.dimension]
-    for probe in scene.probes:
-        if not inside_mesh(points, cells, np.array(probe.at)):
-            raise SceneError(f"{scene.source}: quantities.probes {probe.name!r}: the point {probe.at} is outside "
-                             f"the body (the mesh of level n={n})")
+    check_points(scene, read.points, cells, n)
 
 
 def order_contact_table(work: Path, dimension: int) -> None:
