@@ -241,3 +241,18 @@ def test_contact_csv_in_3d_has_a_row_per_node_of_gamma_3(tmp_path):
     q = run_json(tmp_path, "paper3d", 2)["quantities"]
     assert q["peak_contact_pressure"] == table["contact_pressure"].max()
     assert (table["tangential_traction"] >= 0).all()  # a magnitude in 3D
+
+
+def test_each_electrode_is_a_quantity_named_by_its_role(tmp_path):
+    """The driven electrode's charge and each floating electrode's are the checks' own readings
+    (freefem/checks.idp, freefem/floating.idp), under electrode_charge.<role>."""
+    assert main(["solve", str(DATA / "floating_pair.toml"), "--n", "4", "--results", str(tmp_path)]) == 0
+    data = run_json(tmp_path, "floating_pair", 4)
+    q, checks = data["quantities"], data["checks"]
+    assert [k for k in q if k.startswith("electrode_charge.")] == ["electrode_charge.floating", "electrode_charge.floating_2"]
+    assert [q["electrode_charge.floating"], q["electrode_charge.floating_2"]] == checks["floating_charge"]
+    assert q["electrode_charge.floating"] == pytest.approx(1e-6, rel=1e-9)  # the given charge, as solved
+    strip = ROOT / "cases" / "strip_actuator.toml"
+    assert main(["solve", str(strip), "--n", "2", "--results", str(tmp_path)]) == 0
+    data = run_json(tmp_path, "strip_actuator", 2)
+    assert data["quantities"]["electrode_charge.electrode"] == data["checks"]["electrode_charge"] != 0
