@@ -7,8 +7,9 @@ for it. Every run writes those of its scene into run.json's `quantities`
 A case adds its own in a `[quantities]` section: probes (a field's value at a point) and
 averages (a field's mean over a boundary part), checked when the scene loads. A probe outside
 the body is refused before anything runs: against the rectangle's or the box's extent, which
-is the body; a gmsh body against its bounding box here, and against each level's mesh before
-that level runs (harness/run/quantities.py `check_probes_in_mesh`)."""
+is the body; a gmsh body against its bounding box here, then against its meshes
+(harness/run/quantities.py: the study's coarsest level before anything runs, each level before
+it runs)."""
 
 from __future__ import annotations
 
@@ -18,6 +19,7 @@ from typing import Any
 
 from harness.core.contract import FLOATING_ROLES, ROLE_LABELS
 from harness.core.errors import SceneError
+
 
 @dataclass(frozen=True)
 class Quantity:
