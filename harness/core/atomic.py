@@ -40,7 +40,7 @@ def write_atomic(target: Path, content: str | bytes) -> None:
 # REPORT_FILES, an output directory's level dirs and files, or all of it.
 SCENE, OUTPUT, WHOLE = "scene", "output", "whole"
 # What a study owns in its scene directory besides the level runs.
-REPORT_FILES = ("convergence.csv", "summary.json", "convergence.png", "gci.csv")
+REPORT_FILES = ("convergence.csv", "summary.json", "convergence.png", "gci.csv", "quantities.csv", "quantities.png")
 LEVEL_DIR = re.compile(r"n\d+")
 BACKUP_PREFIX = ".backup-"
 # A level's run in progress (run.py: swapped in whole when it succeeds), and a level dir

@@ -10,6 +10,7 @@ from typing import Any, Mapping, Protocol
 import numpy as np
 import pandas as pd
 from matplotlib.axes import Axes
+from matplotlib.ticker import NullFormatter
 from matplotlib.figure import Figure  # no pyplot: no global figure state, no GUI backend
 
 from harness.measure.norm_table import FIELD_NAMES, TOTAL, error_column, error_label, error_names, mms_norm
@@ -46,6 +47,42 @@ def plot_convergence(study: Study, target: Path) -> None:
     ax.set_title(f"{study.scene.name}: convergence (initial guess {study.scene.initial_guess})")
     ax.grid(True, which="both", alpha=0.3)
     ax.legend(fontsize=8)
+    fig.tight_layout()
+    fig.savefig(target, format="png", dpi=120)
+
+
+def plot_quantities(scene: str, values: pd.DataFrame, studied: Mapping[str, Any], target: Path) -> None:
+    """Each quantity's relative error against its extrapolated value (harness/measure/quantity_study.py),
+    against the unknowns and against each level's wall time: the price of each digit. A
+    quantity that is not extrapolable has no error to draw; the title counts them."""
+    fig = Figure(figsize=(11, 4.8))
+    axes = fig.subplots(1, 2)
+    drawn = [name for name, q in studied.items() if q.relative_errors and q.status == "extrapolated"]
+    for name in drawn:
+        q = studied[name]
+        levels = sorted(q.relative_errors)
+        rows = values.set_index("n").loc[levels]
+        errors = np.array([q.relative_errors[n] for n in levels], dtype=float)
+        shown = errors > 0  # the finest level's error can be 0 to round-off: nothing to draw in log scale
+        for ax, column in zip(axes, ("dofs", "wall_s")):
+            ax.loglog(rows[column].to_numpy(dtype=float)[shown], errors[shown], "-o", markersize=4,
+                      label=f"{name}, order {q.order:.2f}")
+    for ax, label in zip(axes, ("unknowns (dofs)", "wall time of the level [s]")):
+        ax.set_xlabel(label)
+        ax.xaxis.set_minor_formatter(NullFormatter())  # a narrow range of times: minor labels overlap
+        ax.set_ylabel("|Q_n - Q_ext| / |Q_ext|  (Q_ext: Richardson, three finest levels)", fontsize=8)
+        ax.grid(True, which="both", alpha=0.3)
+        if drawn:
+            ax.legend(fontsize=7)
+    for ax, column in zip(axes, ("dofs", "wall_s")):  # each level's own value as a tick: few decades are spanned
+        ticks = values[column].to_numpy(dtype=float)
+        ticks = np.unique(ticks[np.isfinite(ticks) & (ticks > 0)])
+        if drawn and len(ticks) < 10:
+            ax.set_xticks(ticks, [f"{s:.3g}" for s in ticks], fontsize=7, rotation=60)
+    title = f"{scene}: each quantity's error against its extrapolated value"
+    for status in sorted({q.status for name, q in studied.items() if name not in drawn}):
+        title += f"\n{status} (not drawn): {', '.join(name for name, q in studied.items() if q.status == status)}"
+    fig.suptitle(title, fontsize=9)
     fig.tight_layout()
     fig.savefig(target, format="png", dpi=120)
 

@@ -1,4 +1,5 @@
-"""Write a study's baseline (convergence.csv, summary.json, convergence.png) all or nothing."""
+"""Write a study's baseline (convergence.csv, summary.json, convergence.png, and each quantity's
+convergence: quantities.csv, quantities.png) all or nothing."""
 
 from __future__ import annotations
 
@@ -12,7 +13,8 @@ from harness.core.atomic import sibling_temp
 from harness.core.faults import naming
 from harness.core.layout import Layout
 from harness.measure.norm_table import TOTAL, error_column, error_names
-from harness.report.plot import plot_convergence
+from harness.measure.quantity_study import quantity_convergence, quantity_values
+from harness.report.plot import plot_convergence, plot_quantities
 from harness.measure.rates import scaling_exponents
 from harness.measure.fields import read_fields
 from harness.scene.gmsh_geometry import GmshGeometry
@@ -36,15 +38,24 @@ def write_report(study: Study, layout: Layout) -> dict[str, Path]:
         "csv": directory / "convergence.csv",
         "summary": directory / "summary.json",
         "plot": directory / "convergence.png",
+        "quantities_csv": directory / "quantities.csv",
+        "quantities_plot": directory / "quantities.png",
     }
+    values = quantity_values(study.scene, {n: run.record for n, run in study.runs.items()})
+    studied = quantity_convergence(study.scene, values)
     temps = {kind: sibling_temp(path) for kind, path in targets.items()}
     try:
         with naming(targets["csv"]):
             temps["csv"].write_text(csv_text(study.table, PRECISE_CSV_FORMAT))
         with naming(targets["summary"]):
-            temps["summary"].write_text(json_text(summary(study)))
+            temps["summary"].write_text(json_text({**summary(study), "quantities": {
+                name: q.summary() for name, q in studied.items()}}))
         with naming(targets["plot"]):
             plot_convergence(study, temps["plot"])
+        with naming(targets["quantities_csv"]):
+            temps["quantities_csv"].write_text(csv_text(values, PRECISE_CSV_FORMAT))
+        with naming(targets["quantities_plot"]):
+            plot_quantities(study.scene.name, values, studied, temps["quantities_plot"])
         for kind, target in targets.items():
             os.replace(temps[kind], target)
     finally:

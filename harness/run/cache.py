@@ -26,7 +26,8 @@ from harness.run.record import RunRecord, read_run_json
 # macros): an edit to any of them may change a result without changing the scene.
 INPUT_WRITERS = ("harness.run.script", "harness.core.freefem", "harness.run.run", "harness.scene.mms", "harness.scene.scene",
                  "harness.scene.schema", "harness.core.contract", "harness.scene.unknowns", "harness.run.cache", "harness.study.engine",
-                 "harness.scene.floating", "harness.run.plan", "harness.scene.linear_solvers")
+                 "harness.scene.floating", "harness.run.plan", "harness.scene.linear_solvers",
+                 "harness.scene.quantities", "harness.run.quantities")
 CHECKSUMS = "checksums.json"
 # Written after the checksums, or by the harness about the cache itself.
 UNCHECKED = frozenset({CHECKSUMS})

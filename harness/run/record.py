@@ -94,6 +94,9 @@ class RunRecord:
     active_measure: float | None = None  # the closed part of Gamma_3: a length in 2D, an area in 3D
     heat_in_contact: float | None = None
     charge_in_contact: float | None = None
+    peak_contact_pressure: float | None = None  # the largest nodal contact pressure on Gamma_3 [N/m^2]
+    probes: list[float] | None = None  # the case's [quantities] probes, in its order (freefem/quantities.idp)
+    averages: list[float] | None = None  # and its averages
     checks: dict[str, Any] | None = None
     # the recovery estimate of each field's error in its norm of E^h, and the field's own norm (estimator.idp)
     estimator: dict[str, float] | None = None
@@ -123,6 +126,8 @@ class RunRecord:
     warnings: list[str] | None = None  # what the harness warns of this run (harness/run/tresca.py)
     # each material region (in the mesh's label order): its name, its material and the file read for it
     regions: list[dict[str, str]] | None = None
+    # every quantity of the scene's effects by name, from the table of harness/run/quantities.py
+    quantities: dict[str, float] | None = None
     # -- a run on MPI ranks (run.ranks > 1; freefem/ranks_record.idp): the ranks,
     # freefem/parallel_output.idp's figures, and the sequential pass's own peak and residuals
     ranks: int | None = None
@@ -165,7 +170,8 @@ RENAMED_KEYS = {"active_length": "active_measure"}
 KEYS = frozenset(f.name for f in dataclasses.fields(RunRecord))
 # What output.idp writes on every converged run (the rest depends on the scene).
 ALWAYS_WRITTEN = ("n", "converged", "reason", "newton_iterations", "dofs", "fields")
-HARNESS_KEYS = ("wall_s", "pipelined", "waited_s", "peak_rss_source", "started_from", "warnings", "regions")
+HARNESS_KEYS = ("wall_s", "pipelined", "waited_s", "peak_rss_source", "started_from", "warnings", "regions",
+                "quantities")
 
 
 def renamed(data: dict[str, Any]) -> dict[str, Any]:

@@ -25,6 +25,7 @@ from harness.mesh.mesh import build_mesh
 from harness.run import launcher, petsc_plugin
 from harness.run.cache import cached_record, write_checksums
 from harness.run.plan import PARTS, Invocation, RunPlan, WarmStart, invocation, make_plan
+from harness.run.quantities import check_probes_in_mesh, order_contact_table, quantities_of
 from harness.run.record import RunRecord, read_run_json, write_run_json
 from harness.run.tresca import grip_warning
 from harness.scene import materials
@@ -99,6 +100,7 @@ class LevelRun:
         """Start FreeFEM now; it will wait for the state of the run on `coarser_mesh`."""
         if launcher.ranks_of(self.scene).parallel:  # stdin reaches rank 0 only: no pipelined start
             return
+        check_probes_in_mesh(self.scene, self.mesh, self.n)
         early = invocation(self.scene, self.mesh, self.n, self.layout, "file", WarmStart(coarser_mesh, Path("-")))
         with self._space():
             self.work = self._new_work_dir()
@@ -107,6 +109,11 @@ class LevelRun:
     def start(self, warm: WarmStart | None) -> RunResult | None:
         """The cached result (and no run) if the plan's key is unchanged, else None with the
         run under way (wait() for it)."""
+        try:
+            check_probes_in_mesh(self.scene, self.mesh, self.n)
+        except SceneError:
+            self.abandon()
+            raise
         plan = self.plan = make_plan(self.scene, self.mesh, self.n, self.layout, warm)
         cached = cached_result(self.layout.level_dir(self.scene.name, self.n), plan.key, self.n)
         if cached and not self.force:
@@ -273,6 +280,8 @@ def collect(
     grip = grip_warning(scene, record)
     if grip:
         record = record.with_(warnings=[grip])
+    record = record.with_(quantities=quantities_of(scene, record.to_json()))
+    order_contact_table(work, scene.dimension)
     write_run_json(record, work)
     return record
 

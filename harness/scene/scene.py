@@ -19,6 +19,7 @@ from harness.scene.linear_solvers import LinearSolver, Memory, solver
 from harness.scene.petsc_options import RANKS_ONLY, default_options, one_rank_options
 from harness.scene.box import Box, parse_box
 from harness.scene.gmsh_geometry import GmshGeometry, parse_gmsh
+from harness.scene.quantities import Average, Probe, Quantity, parse_quantities, quantity_table
 from harness.scene.poling import Poling, default_axis, parse_poling
 from harness.scene.regions import (Region, any_rotated, check_conductors, check_regions, regions_of,
                                    with_paths_resolved)
@@ -210,6 +211,25 @@ class Scene:
         return dataclasses.replace(self, table=table, sections=sections)
 
     @property
+    def probes(self) -> tuple[Probe, ...]:
+        return self.case_quantities[0]
+
+    @property
+    def averages(self) -> tuple[Average, ...]:
+        return self.case_quantities[1]
+
+    @property
+    def case_quantities(self) -> tuple[tuple[Probe, ...], tuple[Average, ...]]:
+        """The [quantities] section's probes and averages (checked when the scene loaded)."""
+        return parse_quantities(self.sections.quantities.__dict__, self.fields, self.dimension,
+                                self.geometry.used_roles(), extents(self.geometry))
+
+    @property
+    def quantities(self) -> tuple[Quantity, ...]:
+        """Every quantity of the scene's effects, roles and [quantities] (harness/scene/quantities.py)."""
+        return quantity_table(self.effects, self.geometry.used_roles(), self.probes, self.averages)
+
+    @property
     def reference_state(self) -> str:
         return self.sections.reference.state
 
@@ -247,11 +267,27 @@ def load_scene(path: Path, overrides: Iterable[str] = ()) -> Scene:
         check_fixed(geometry, table["scene"]["effects"], table)
         check_floating(table, geometry)
         check_expect(table["expect"])
+        dimension = getattr(geometry, "dimension", 2)
+        parse_quantities(table["quantities"], tuple(f.name for f in Unknowns(tuple(table["scene"]["effects"]), dimension).fields),
+                         dimension, geometry.used_roles(), extents(geometry))
     except SceneError as exc:
         raise SceneError(f"{path}: {exc}") from None  # every case-file error names the file
     sections = sections_of(table)
-    table = {name: values for name, values in table.items() if name != "expect"}
+    # (a case without [quantities] keeps the table, and so the summaries, it had before the section existed)
+    table = {name: values for name, values in table.items()
+             if name != "expect" and not (name == "quantities" and not any(values.values()))}
     return Scene(source=path, table=table, geometry=geometry, warnings=warnings, sections=sections)
+
+
+def extents(geometry: Geometry | Box | GmshGeometry) -> tuple[tuple[float, ...], tuple[float, ...]]:
+    """The body's lowest and highest corners: the rectangle's and the box's own extent (the body
+    itself), a gmsh body's bounding box."""
+    if isinstance(geometry, Box):
+        return (0.0, 0.0, 0.0), geometry.lengths
+    if isinstance(geometry, GmshGeometry):
+        d, b = geometry.dimension, geometry.bounds
+        return tuple(b[:d]), tuple(b[3:3 + d])
+    return (0.0, 0.0), (geometry.width, geometry.height)
 
 
 def parse_any_geometry(table: dict[str, dict[str, Any]], case_dir: Path) -> Geometry | Box | GmshGeometry:

@@ -306,6 +306,11 @@ SCHEMA["reference"] = {
     "split": Key(int, 1, positive),
 }
 
+# A case's own quantities (harness/scene/quantities.py, docs/quantities.md), beside the built-in
+# ones every run reports: probes = [{ name, field, at = [x, y(, z)] }] and
+# averages = [{ name, field, on = "<role>" }], checked there.
+SCHEMA["quantities"] = {"probes": Key(object, []), "averages": Key(object, [])}
+
 # The [geometry] of kind = "box" (harness/scene/box.py): side lengths and each face's role or
 # patches; the face values are checked there.
 BOX_GEOMETRY: dict[str, Key] = {

@@ -7,7 +7,9 @@ Two views. `device` (the default): a 2D body's phi, theta and displacement on th
 mesh, thickness exaggerated (a device is thin); a 3D body's phi and theta on the face where
 it meets its pad and on the section y = 0 (harness/report/device_plot.py). `section`, 3D
 only: phi and theta on the mid-plane with its displacement exaggerated, and on the contact
-face, Gamma_3 of --case when given (harness/report/plot3d.py)."""
+face, Gamma_3 of --case when given (harness/report/plot3d.py). `contact`: the contact pressure
+along Gamma_3 from the level's contact.csv, with the tangential traction and the gap in 2D
+(harness/report/contact_plot.py), into contact.png unless --out says where."""
 
 from __future__ import annotations
 
@@ -16,23 +18,25 @@ from pathlib import Path
 
 from harness.core.errors import HarnessError
 
-VIEWS = ("device", "section")
+VIEWS = ("device", "section", "contact")
 
 
 def add_arguments(parser: argparse.ArgumentParser) -> None:
     parser.add_argument("results", type=Path, metavar="RESULTS_DIR",
                         help="a level's results directory (holding solution.vtu), or a scene's, whose finest level is drawn")
     parser.add_argument("--out", type=Path, default=None, metavar="PNG",
-                        help="where to write the picture (default: fields.png in the scene's results directory)")
+                        help="where to write the picture (default: fields.png, or contact.png for --view contact, in the "
+                             "scene's results directory)")
     parser.add_argument("--view", choices=VIEWS, default="device",
-                        help="device: the body and its deformation (2D or 3D); section: a 3D run's mid-plane and contact face")
+                        help="device: the body and its deformation (2D or 3D); section: a 3D run's mid-plane and contact face; "
+                             "contact: the contact pressure along Gamma_3 (contact.csv)")
     parser.add_argument("--case", type=Path, default=None,
                         help="with --view section, the case file whose contact part (Gamma_3) is drawn as the face")
 
 
 def run(args: argparse.Namespace) -> int:
     level = level_dir(args.results)
-    out = args.out or level.parent / "fields.png"
+    out = args.out or level.parent / ("contact.png" if args.view == "contact" else "fields.png")
     draw(level, out, args.view, args.case)
     print(f"wrote {out}")
     return 0
@@ -54,6 +58,13 @@ def draw(level: Path, out: Path, view: str, case: Path | None) -> None:
     # matplotlib is imported here: `python -m harness --help` does not pay for it.
     from harness.measure.fields import read_fields
 
+    if view == "contact":
+        if case is not None:
+            raise HarnessError("--case names the contact face of --view section; the contact view needs none")
+        from harness.report.contact_plot import render as render_contact
+
+        render_contact(level, out)
+        return
     if view == "device":
         if case is not None:
             raise HarnessError("--case names the contact face of --view section; the device view needs none")

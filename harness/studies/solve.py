@@ -53,7 +53,7 @@ def solve(scene: Scene, n: int, layout: Layout, force: bool, ignore_memory: bool
     parsed: dict[int, Fields] = {}
 
     def report(result: RunResult) -> None:
-        print(describe_run(scene.name, result.record, result.directory, result.reused))
+        print(describe_run(scene.name, result.record, result.directory, result.reused, scene))
         parsed[n] = fields = read_fields(result.solution)
         for line in thin_warnings(scene.geometry.body_parts(), n, fields.points, fields.cells):
             print(f"warning: {line}", file=sys.stderr)
@@ -65,8 +65,13 @@ def solve(scene: Scene, n: int, layout: Layout, force: bool, ignore_memory: bool
     return run_pipeline(plan, runs, report, verdict)
 
 
-def describe_run(case: str, record: RunRecord, directory: Path, reused: bool) -> str:
+def describe_run(case: str, record: RunRecord, directory: Path, reused: bool, scene: Scene | None = None) -> str:
     r = record
+    # The quantities the lines above do not show (run.json's quantities, docs/quantities.md).
+    shown = {"contact_force_normal", "contact_extent", "max_theta", "max_abs_u"}
+    units = {q.name: q.unit(scene.dimension) for q in scene.quantities} if scene else {}
+    rest = [f"{name} {fmt(value)} {units.get(name, '')}".rstrip()
+            for name, value in (r.quantities or {}).items() if name not in shown]
     state = "converged" if r.converged else f"NOT converged ({r.reason})"
     c = r.checks or {}
     floating = [f"  floating electrode {k + 1} at {fmt(volts)} V, charge {fmt(charge)} (given {fmt(given)})"
@@ -79,6 +84,7 @@ def describe_run(case: str, record: RunRecord, directory: Path, reused: bool) ->
         f"  max theta {fmt(r.max_theta)}, phi in [{fmt(r.min_phi)}, {fmt(r.max_phi)}], max |u| {fmt(r.max_abs_u)}",
         f"  contact force {fmt(r.contact_force)}, closed part of Gamma_3 {fmt(r.active_measure)}",
         *floating,
+        *([f"  {', '.join(rest)}"] if rest else []),
         f"  results in {directory}",
     ])
 

@@ -25,6 +25,7 @@ from pathlib import Path
 from typing import Callable, Sequence, TypeVar
 
 from harness.core.atomic import StudyTransaction
+from harness.run.quantities import check_probes_on_level
 from harness.core.errors import MeshError, SceneError, VerdictError
 from harness.core.faults import check_results_root, naming
 from harness.core.guards import (Slope, check_memory, check_nested, check_not_shallower, check_slope_levels,
@@ -102,6 +103,8 @@ def check_guards(plan: Plan) -> None:
             for case_dir in plan.scene_dirs:
                 if case_dir.name == scene.name:
                     check_not_shallower(case_dir, levels)
+        if levels:
+            check_probes_on_level(scene, min(levels))  # a gmsh body's probes, in its coarsest mesh
         for n in levels:
             check_blocks_on_grid(scene, n)
             fewer = check_level_ranks(scene, n)
