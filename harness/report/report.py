@@ -13,7 +13,8 @@ from harness.core.atomic import sibling_temp
 from harness.core.faults import naming
 from harness.core.layout import Layout
 from harness.measure.norm_table import TOTAL, error_column, error_names
-from harness.measure.quantity_study import quantity_convergence, quantity_values
+from harness.measure.quantity_study import QuantityConvergence, quantity_convergence, quantity_values
+from harness.measure.tolerances import ToleranceVerdict, judge
 from harness.report.plot import plot_convergence, plot_quantities
 from harness.measure.rates import scaling_exponents
 from harness.measure.fields import read_fields
@@ -48,8 +49,10 @@ def write_report(study: Study, layout: Layout) -> dict[str, Path]:
         with naming(targets["csv"]):
             temps["csv"].write_text(csv_text(study.table, PRECISE_CSV_FORMAT))
         with naming(targets["summary"]):
+            judged = tolerance_verdicts(study, studied)
             temps["summary"].write_text(json_text({**summary(study), "quantities": {
-                name: q.summary() for name, q in studied.items()}}))
+                name: q.summary() for name, q in studied.items()},
+                **({"tolerances": {name: v.summary() for name, v in judged.items()}} if judged else {})}))
         with naming(targets["plot"]):
             plot_convergence(study, temps["plot"])
         with naming(targets["quantities_csv"]):
@@ -62,6 +65,17 @@ def write_report(study: Study, layout: Layout) -> dict[str, Path]:
         for tmp in temps.values():
             tmp.unlink(missing_ok=True)
     return targets
+
+
+def tolerance_verdicts(study: Study, studied: dict[str, QuantityConvergence] | None = None
+                       ) -> dict[str, ToleranceVerdict]:
+    """The case's tolerances judged on the study's finest level (none: an empty dict)."""
+    if not study.scene.tolerances:
+        return {}
+    if studied is None:
+        studied = quantity_convergence(study.scene, quantity_values(
+            study.scene, {n: run.record for n, run in study.runs.items()}))
+    return judge(study.scene.tolerances, studied, study.runs[study.reference].record)
 
 
 def summary(study: Study) -> dict[str, Any]:

@@ -185,3 +185,23 @@ def parse_quantities(table: dict[str, Any], fields: tuple[str, ...], dimension: 
                              f"({', '.join(sorted(roles))})")
         averages.append(Average(name, field, on))
     return tuple(probes), tuple(averages)
+
+
+def parse_tolerances(value: Any, quantities: tuple[Quantity, ...]) -> dict[str, float]:
+    """[quantities] tolerances = { <quantity> = <relative error> }: each key a quantity the scene
+    has, each value a positive, finite number (a relative error, 0.01 for 1 %)."""
+    if not isinstance(value, dict):
+        raise SceneError(f"quantities.tolerances must be a table like {{ charge_through_contact = 0.01 }}, "
+                         f"not {value!r}")
+    names = [q.name for q in quantities]
+    out = {}
+    for name, tolerance in value.items():
+        if name not in names:
+            raise SceneError(f"quantities.tolerances.{name}: the scene has no quantity {name!r} "
+                             f"(it has {', '.join(names)})")
+        if isinstance(tolerance, bool) or not isinstance(tolerance, (int, float)) \
+                or not (math.isfinite(tolerance) and tolerance > 0):
+            raise SceneError(f"quantities.tolerances.{name} = {tolerance!r} must be a relative error > 0 "
+                             f"(0.01 for 1 %)")
+        out[name] = float(tolerance)
+    return out

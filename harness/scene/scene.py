@@ -19,7 +19,7 @@ from harness.scene.linear_solvers import LinearSolver, Memory, solver
 from harness.scene.petsc_options import RANKS_ONLY, default_options, one_rank_options
 from harness.scene.box import Box, parse_box
 from harness.scene.gmsh_geometry import GmshGeometry, parse_gmsh
-from harness.scene.quantities import Average, Probe, Quantity, parse_quantities, quantity_table
+from harness.scene.quantities import Average, Probe, Quantity, parse_quantities, parse_tolerances, quantity_table
 from harness.scene.poling import Poling, default_axis, parse_poling
 from harness.scene.regions import (Region, any_rotated, check_conductors, check_regions, regions_of,
                                    with_paths_resolved)
@@ -225,6 +225,12 @@ class Scene:
                                 self.geometry.used_roles(), extents(self.geometry))
 
     @property
+    def tolerances(self) -> dict[str, float]:
+        """[quantities] tolerances: each quantity's relative error a study asks of its finest level
+        (checked when the scene loaded: a quantity of the scene, a positive number)."""
+        return {name: float(v) for name, v in (self.sections.quantities.tolerances or {}).items()}
+
+    @property
     def quantities(self) -> tuple[Quantity, ...]:
         """Every quantity of the scene's effects, roles and [quantities] (harness/scene/quantities.py)."""
         return quantity_table(self.effects, self.geometry.used_roles(), self.probes, self.averages)
@@ -268,11 +274,17 @@ def load_scene(path: Path, overrides: Iterable[str] = ()) -> Scene:
         check_floating(table, geometry)
         check_expect(table["expect"])
         dimension = getattr(geometry, "dimension", 2)
-        parse_quantities(table["quantities"], tuple(f.name for f in Unknowns(tuple(table["scene"]["effects"]), dimension).fields),
-                         dimension, geometry.used_roles(), extents(geometry))
+        effects = tuple(table["scene"]["effects"])
+        probes, averages = parse_quantities(table["quantities"], tuple(f.name for f in Unknowns(effects, dimension).fields),
+                                            dimension, geometry.used_roles(), extents(geometry))
+        parse_tolerances(table["quantities"]["tolerances"],
+                         quantity_table(effects, geometry.used_roles(), probes, averages))
     except SceneError as exc:
         raise SceneError(f"{path}: {exc}") from None  # every case-file error names the file
     sections = sections_of(table)
+    # A tolerance judges a study's result and changes no run: it stays out of the table the runs'
+    # inputs are taken from, so asking for one reuses the runs made without it.
+    table["quantities"] = {k: v for k, v in table["quantities"].items() if k != "tolerances"}
     # (a case without [quantities] keeps the table, and so the summaries, it had before the section existed)
     table = {name: values for name, values in table.items()
              if name != "expect" and not (name == "quantities" and not any(values.values()))}

@@ -9,7 +9,8 @@ from harness.arguments import add_case, add_common, add_effects, add_jobs, add_l
 from harness.core.guards import Slope
 from harness.core.layout import Layout
 from harness.study.pipeline import Guarded, Plan, run_pipeline, scene_of
-from harness.report.report import format_table, write_report
+from harness.measure import tolerances
+from harness.report.report import format_table, tolerance_verdicts, write_report
 from harness.measure.run_checks import failed_checks, print_checks
 from harness.scene.scene import Scene
 from harness.study.study import Study, run_study
@@ -49,11 +50,19 @@ def convergence(scene: Scene, levels: tuple[int, ...], layout: Layout, jobs: int
 
 
 def verdict(study: Study) -> str | None:
-    """The slope's band first, then every level's physical checks (harness/measure/run_checks.py)."""
+    """The slope's band first, then the case's tolerances on the finest level
+    (harness/measure/tolerances.py, a line each), then every level's physical checks
+    (harness/measure/run_checks.py)."""
     scene = study.scene
     failed = failed_checks(print_checks(scene, [study.runs[n] for n in sorted(study.runs)], study.solutions))
+    judged = tolerance_verdicts(study)
+    for tolerance in judged.values():
+        print(tolerance.line())
     low, high = scene.slope_band
     if not study.passed:
         return f"total slope {study.total_slope:.3f} is outside the band [{low}, {high}] of {scene.source}"
     print(f"total slope {study.total_slope:.3f} is inside the band [{low}, {high}]: pass")
+    missed = tolerances.failure(judged, f"{scene.name} ({scene.source})")
+    if missed:
+        return missed
     return f"{scene.name}: {failed}" if failed else None
