@@ -166,9 +166,17 @@ branches: $(STAMP) freefem
 # (docs/crosscheck.md): the paper's scene at h = 1/64 and its 3D block at h = 1/8, both from
 # zero, as whole processes, the two codes alternating, medians of 5 and their ratio per phase,
 # into results/bench/getfem/ (timing.md, timing.csv).
-.PHONY: cost bench
+.PHONY: cost bench budget
 cost: $(STAMP) freefem
 	$(PY) -m harness cost cases/paper.toml $(COST_FLAGS)
+
+# The error budget (docs/cost.md): each quantity's error at n = 16 in its mesh, penalty and
+# Newton parts, beside their wall times, for the paper's scene on both branches and the strip
+# actuator, into results/budget/<case>/ (budget.csv, budget.md).
+budget: $(STAMP) freefem
+	$(PY) -m harness budget cases/paper.toml --n 16 --set scene.name=paper_zero
+	$(PY) -m harness budget cases/paper.toml --n 16 --set scene.coarsest_guess=pressed --set scene.name=paper_pressed
+	$(PY) -m harness budget cases/strip_actuator.toml --n 16
 
 bench: $(STAMP) freefem getfem
 	$(PY) -m harness bench cases/paper.toml $(BENCH_FLAGS)

@@ -22,7 +22,7 @@ from harness.core.faults import guarded, report
 TASKS: dict[str, tuple[str, ...]] = {
     "your own part (a case file of yours)": ("solve", "convergence", "adapt", "plot"),
     "checking the scheme": ("verify", "scenes", "stress", "stability", "branches", "crosscheck"),
-    "what it costs and how far it scales": ("cost", "bench", "solvers", "profile", "scale"),
+    "what it costs and how far it scales": ("cost", "budget", "bench", "solvers", "profile", "scale"),
 }
 STUDIES: dict[str, str] = {
     "convergence": "solve every level of a case; the error of each against the finest, and its slope",
@@ -35,6 +35,7 @@ STUDIES: dict[str, str] = {
     "adapt": "adaptive refinement from the error estimate (2D and 3D): error against unknowns, beside uniform",
     "plot": "a picture of one run's fields, 2D or 3D: a device on its deformed mesh, or a 3D section",
     "cost": "what accuracy costs: the cost-accuracy frontier of a scene",
+    "budget": "each quantity's error in three parts (mesh, penalty, Newton), beside what each costs",
     "bench": "repeated timings (finest level, sweep, whole process), medians and spread",
     "solvers": "the solver table: every linear solver on the same levels, medians",
     "profile": "where a solve's time and memory go, piece by piece, medians and shares",
