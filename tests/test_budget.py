@@ -53,6 +53,11 @@ def test_the_budget_of_a_pressed_block_has_its_columns_and_the_penalty_answers_k
     assert row.loc["bottom_uy", "penalty_x100"] == pytest.approx(0.99, abs=1e-6)
     for part in ("value_wall_s", "discretisation_wall_s", "penalty_wall_s", "newton_wall_s"):
         assert (table[part] > 0).all()
+    # Again: every run reused (its inputs unchanged), the same table
+    capsys.readouterr()
+    assert budget(tmp_path, BLOCK, 8, "--set", BOTTOM) == 0
+    assert capsys.readouterr().err.count("reused") == 6
+    pd.testing.assert_frame_equal(pd.read_csv(out / "budget.csv"), table)
 
 
 def test_a_linear_problems_newton_part_is_zero_and_it_has_no_penalty_part(tmp_path):

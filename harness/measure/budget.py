@@ -21,7 +21,7 @@ from __future__ import annotations
 
 import math
 from dataclasses import dataclass
-from typing import Mapping
+from typing import Any, Mapping
 
 import pandas as pd
 
@@ -101,12 +101,16 @@ def part(value: float) -> str:
     return "–" if not math.isfinite(value) else f"{value:+.2e}" if value else "0"
 
 
-def budget_line(row: Mapping[str, object]) -> str:
+def seconds(value: float) -> str:
+    return f"{value:.2f} s" if math.isfinite(value) else "no runs"
+
+
+def budget_line(row: Mapping[str, Any]) -> str:
     """One quantity's budget as one printed line."""
-    goal = f", goal {part(row['goal_estimate'])}" if "goal_estimate" in row else ""  # type: ignore[arg-type]
+    goal = f", goal {part(row['goal_estimate'])}" if "goal_estimate" in row else ""
     mesh = part(row["discretisation"]) if math.isfinite(row["discretisation"]) else \
-        str(row["discretisation_status"]).split(":")[0]  # type: ignore[arg-type]
+        str(row["discretisation_status"]).split(":")[0]
     return (f"{row['quantity']} = {row['value']:.6g} {row['unit']}: mesh {mesh}{goal} "
-            f"({row['discretisation_wall_s']:.2f} s) | penalty x10 {part(row['penalty_x10'])}, "  # type: ignore[arg-type]
-            f"x100 {part(row['penalty_x100'])} ({row['penalty_wall_s']:.2f} s) | "  # type: ignore[arg-type]
-            f"Newton {part(row['newton'])} ({row['newton_wall_s']:.2f} s)")  # type: ignore[arg-type]
+            f"({seconds(row['discretisation_wall_s'])}) | penalty x10 {part(row['penalty_x10'])}, "
+            f"x100 {part(row['penalty_x100'])} ({seconds(row['penalty_wall_s'])}) | "
+            f"Newton {part(row['newton'])} ({seconds(row['newton_wall_s'])})")
