@@ -20,7 +20,7 @@ ROOT = Path(__file__).parents[1]
 BLOCK = ROOT / "tests" / "data" / "block.toml"
 LINEAR = ROOT / "tests" / "data" / "linear_probes.toml"
 COLUMNS = ["quantity", "unit", "value", "discretisation", "discretisation_status", "penalty_x10", "penalty_x100",
-           "newton", "value_wall_s", "discretisation_wall_s", "penalty_wall_s", "newton_wall_s"]
+           "penalty_limit", "penalty_limit_status", "newton", "value_wall_s", "discretisation_wall_s", "penalty_wall_s", "newton_wall_s"]
 # The block's bottom, where u_y = -s = -load/c_nu (a probe: no built-in quantity is the penetration).
 BOTTOM = 'quantities.probes=[{name = "bottom_uy", field = "u_y", at = [1.0, 0.0]}]'
 
@@ -91,10 +91,23 @@ def test_the_goal_estimate_is_shown_beside_richardsons_when_the_run_has_one():
     runs = BudgetRuns(levels, {10: record(16, {"q": 1.1}), 100: record(16, {"q": 1.2})}, record(16, {"q": 1.0625}))
     row = budget_table([("q", "m")], runs).iloc[0]
     assert "goal_estimate" not in row.index
-    assert row["discretisation"] == pytest.approx(-0.0625)
+    assert row["discretisation"] == pytest.approx(-0.0625 / 1.0625)
     assert row["penalty_x10"] == pytest.approx(0.0375 / 1.0625) and row["newton"] == 0
     assert row["discretisation_wall_s"] == 2.0 and row["penalty_wall_s"] == 2.0
     levels[16] = record(16, {"q": 1.0625}, goal_estimates={"q": -0.05})
     row = budget_table([("q", "m")], BudgetRuns(levels, {}, record(16, {"q": 1.0625}))).iloc[0]
     assert row["goal_estimate"] == pytest.approx(-0.05 / 1.0625)
     assert math.isnan(row["penalty_x10"])
+
+
+def test_the_penalty_limit_is_richardsons_in_one_over_c_nu_and_none_when_the_penalty_sets_the_answer():
+    levels = {4: record(4, {"q": 1.25, "f": 1.0}), 8: record(8, {"q": 1.125, "f": 1.0}),
+              16: record(16, {"q": 1.0, "f": 1.0})}
+    # q = 2 - 1/k at c_nu x k: its limit 2, twice level 16's value; f = k, set by the penalty
+    penalty = {10: record(16, {"q": 1.9, "f": 10.0}), 100: record(16, {"q": 1.99, "f": 100.0})}
+    table = budget_table([("q", "N/m"), ("f", "N/m")], BudgetRuns(levels, penalty, record(16, {"q": 1.0, "f": 1.0})))
+    row = table.set_index("quantity")
+    assert row.loc["q", "penalty_limit"] == pytest.approx(1.0, rel=1e-9)
+    assert row.loc["q", "penalty_limit_status"] == "extrapolated"
+    assert math.isnan(row.loc["f", "penalty_limit"]) and row.loc["f", "penalty_limit_status"].startswith("not extrapolable")
+    assert "divergent" in row.loc["f", "penalty_limit_status"]

@@ -3,18 +3,22 @@ at level N in three parts, each relative to the quantity's value there and each 
 time its runs took.
 
 - discretisation: Richardson's, from levels N/4, N/2, N (the three-grid procedure of
-  harness/measure/quantity_study.py): (f_ext - f_N) / |f_ext|, the estimate of Q_exact - Q_N; a
+  harness/measure/quantity_study.py): (f_ext - f_N) / |f_N|, the estimate of Q_exact - Q_N
+  (summary.json's relative errors divide by |f_ext|: the same to first order); a
   quantity that is not extrapolable has none (its status says why). When level N's run.json has
   a goal-oriented estimate (`goal_estimates.<name>`, Q_exact - Q_h), it is shown beside:
   estimate / |Q_N|;
 - the penalty: level N again at c_nu x10 and x100, (Q(10 c_nu) - Q) / |Q| and
   (Q(100 c_nu) - Q) / |Q|: how far the answer moves as the contact is made stiffer, the way
-  penalised contact approaches exact contact;
+  penalised contact approaches exact contact; and from the three, Richardson's limit in
+  1/c_nu, (Q_inf - Q) / |Q|, when the answer has one (`penalty_limit`);
 - Newton: level N solved to newton.rtol = 1e-6 against the case's own rtol,
   (Q(rtol 1e-6) - Q) / |Q|: the error a looser solve would make.
 
-Every part is signed: the other run's value minus level N's, over |level N's| (Richardson's
-over |f_ext|), so a positive part says the quantity would grow.
+Every part is signed: the other run's (or the extrapolated) value minus level N's, over |level
+N's|, so a positive part says the quantity would grow. Dividing by level N's value, not by a
+limit, keeps a part finite where the limit is near zero (a friction force that vanishes as the
+contact stiffens).
 """
 
 from __future__ import annotations
@@ -80,7 +84,7 @@ def budget_table(quantities: list[tuple[str, str]], runs: BudgetRuns) -> pd.Data
         value = value_of(runs.finest, name)
         three = converge(name, unit, {k: value_of(r, name) for k, r in runs.levels.items()})
         richardson = 0.0 if three.status == CONVERGED else \
-            (three.extrapolated - value) / abs(three.extrapolated) if three.status == EXTRAPOLATED else math.nan
+            relative_change(three.extrapolated, value) if three.status == EXTRAPOLATED else math.nan
         row = {"quantity": name, "unit": unit, "value": value,
                "discretisation": richardson,
                "discretisation_status": three.status + (f": {three.why}" if three.why else "")}
@@ -90,11 +94,29 @@ def budget_table(quantities: list[tuple[str, str]], runs: BudgetRuns) -> pd.Data
         for factor in PENALTY_FACTORS:
             other = runs.penalty.get(factor)
             row[f"penalty_x{factor}"] = math.nan if other is None else relative_change(value_of(other, name), value)
+        row["penalty_limit"], row["penalty_limit_status"] = penalty_limit(name, unit, value, runs.penalty)
         row["newton"] = relative_change(value_of(runs.newton, name), value)
         row.update({"value_wall_s": runs.finest.value("wall_s"), "discretisation_wall_s": wall(coarse),
                     "penalty_wall_s": wall(list(runs.penalty.values())), "newton_wall_s": runs.newton.value("wall_s")})
         rows.append(row)
     return pd.DataFrame(rows)
+
+
+def penalty_limit(name: str, unit: str, value: float, penalty: Mapping[int, RunRecord]) -> tuple[float, str]:
+    """Where the quantity goes as c_nu grows without bound, from c_nu x1, x10, x100: the
+    three-grid procedure with 1/c_nu as the grid size (ratio 10; the penalty's error of a
+    contact problem falls as a power of 1/c_nu when the contact has a limit), so
+    (Q_inf - Q) / |Q|, and its status: a quantity that grows with c_nu (the penalty sets
+    it) is divergent, not extrapolated."""
+    if set(penalty) != set(PENALTY_FACTORS):
+        return math.nan, "no contact"
+    three = converge(name, unit, {1: value, **{k: value_of(r, name) for k, r in penalty.items()}})
+    why = three.status + (f": {three.why}" if three.why else "")
+    if three.status == CONVERGED:
+        return 0.0, why
+    if three.status == EXTRAPOLATED:
+        return relative_change(three.extrapolated, value), why
+    return math.nan, why
 
 
 def part(value: float) -> str:
@@ -110,7 +132,9 @@ def budget_line(row: Mapping[str, Any]) -> str:
     goal = f", goal {part(row['goal_estimate'])}" if "goal_estimate" in row else ""
     mesh = part(row["discretisation"]) if math.isfinite(row["discretisation"]) else \
         str(row["discretisation_status"]).split(":")[0]
+    limit = part(row["penalty_limit"]) if math.isfinite(row["penalty_limit"]) else \
+        str(row["penalty_limit_status"]).split(":")[0]
     return (f"{row['quantity']} = {row['value']:.6g} {row['unit']}: mesh {mesh}{goal} "
             f"({seconds(row['discretisation_wall_s'])}) | penalty x10 {part(row['penalty_x10'])}, "
-            f"x100 {part(row['penalty_x100'])} ({seconds(row['penalty_wall_s'])}) | "
+            f"x100 {part(row['penalty_x100'])}, limit {limit} ({seconds(row['penalty_wall_s'])}) | "
             f"Newton {part(row['newton'])} ({seconds(row['newton_wall_s'])})")

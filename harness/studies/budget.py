@@ -3,12 +3,12 @@ beside the wall time it costs (docs/cost.md), into results/budget/<case>/:
 
 - the mesh's (discretisation): Richardson's from levels N/4, N/2, N, and the goal-oriented
   estimate beside it when level N's run.json has one;
-- the penalty's: level N again at contact.c_nu x10 and x100 (exact, augmented-Lagrangian
-  contact, which would remove this part, is not yet in the harness);
+- the penalty's: level N again at contact.c_nu x10 and x100, and from the three Richardson's
+  limit in 1/c_nu where the answer has one (exact, augmented-Lagrangian contact, which would
+  remove this part, is not yet in the harness);
 - Newton's: level N solved to newton.rtol = 1e-6 against the case's own rtol.
 
-Each part is the other run's value minus level N's, relative to level N's (Richardson's:
-f_ext - f_N over |f_ext|). Writes budget.csv (a row per quantity: its value, each part, each
+Each part is the other run's (or the extrapolated) value minus level N's, relative to level N's. Writes budget.csv (a row per quantity: its value, each part, each
 part's wall time) and budget.md, and prints one line per quantity. Its runs are its own:
 levels/ (n<N/4>, n<N/2>, n<N>), c_nu_x10/, c_nu_x100/ and newton_rtol_1e-6/ (each n<N>), so
 none meets a convergence study's levels. Level N's variants start where level N did: from
@@ -132,14 +132,16 @@ def budget_markdown(scene: Scene, n: int, levels: tuple[int, ...], table: pd.Dat
     """budget.md: the table, with what each column is."""
     goal = "goal_estimate" in table.columns
     header = ["quantity", "unit", f"value at n = {n}", "mesh (Richardson)", *(["mesh (goal)"] if goal else []),
-              "penalty c_nu x10", "penalty c_nu x100", "Newton rtol 1e-6"]
+              "penalty c_nu x10", "penalty c_nu x100", "penalty's limit", "Newton rtol 1e-6"]
     rows = []
     for row in table.to_dict("records"):
         mesh = signed(row["discretisation"]) if math.isfinite(row["discretisation"]) else \
             str(row["discretisation_status"])
         rows.append([row["quantity"], row["unit"], f"{row['value']:.6g}", mesh,
                      *([signed(row["goal_estimate"])] if goal else []),
-                     signed(row["penalty_x10"]), signed(row["penalty_x100"]), signed(row["newton"])])
+                     signed(row["penalty_x10"]), signed(row["penalty_x100"]),
+                     signed(row["penalty_limit"]) if math.isfinite(row["penalty_limit"]) else
+                     str(row["penalty_limit_status"]).split(":")[0], signed(row["newton"])])
     first = table.iloc[0]
     times = markdown_table(["part", "runs", "wall time [s]"], [
         ["the value", f"level {n}", cell(float(first["value_wall_s"]))],
@@ -150,9 +152,10 @@ def budget_markdown(scene: Scene, n: int, levels: tuple[int, ...], table: pd.Dat
                     else "The scene has no contact: no penalty part.")
     return (f"# Error budget: {scene.name} at n = {n}\n\n"
             f"Case {scene.source.name}; `python -m harness budget` (harness/studies/budget.py). Each part is "
-            f"signed and relative to the value at n = {n}: mesh, Richardson's (f_ext - f_{n}) / |f_ext| from "
+            f"signed and relative to the value at n = {n}: mesh, Richardson's (f_ext - f_{n}) / |f_{n}| from "
             f"levels {', '.join(map(str, levels))} (or, where the quantity is not extrapolable, why); "
-            f"penalty, (Q(k c_nu) - Q) / |Q|; Newton, (Q(rtol 1e-6) - Q) / |Q| against newton.rtol = "
+            f"penalty, (Q(k c_nu) - Q) / |Q|, and its limit (Q_inf - Q) / |Q|, Richardson's in 1/c_nu from "
+            f"c_nu x1, x10, x100 (or why there is none: divergent, the answer grows with c_nu); Newton, (Q(rtol 1e-6) - Q) / |Q| against newton.rtol = "
             f"{scene.sections.newton.rtol:g}. {contact_line}\n\n"
             + markdown_table(header, rows) + "\nWhat each part's runs cost (this machine):\n\n" + times)
 
