@@ -111,3 +111,13 @@ def test_the_penalty_limit_is_richardsons_in_one_over_c_nu_and_none_when_the_pen
     assert row.loc["q", "penalty_limit_status"] == "extrapolated"
     assert math.isnan(row.loc["f", "penalty_limit"]) and row.loc["f", "penalty_limit_status"].startswith("not extrapolable")
     assert "divergent" in row.loc["f", "penalty_limit_status"]
+
+
+def test_a_difference_within_round_off_is_no_difference_to_the_penalty_limit():
+    # max theta at c_nu x1, x10, x100 on the strip actuator: x1 and x10 equal, or 1.2e-16 apart
+    # by the last bits of the solve; either way one difference is zero: divergent, not oscillatory
+    levels = {4: record(4, {"t": 14.0}), 8: record(8, {"t": 14.2}), 16: record(16, {"t": 14.23356})}
+    for x10 in (14.23356, 14.23356 * (1 + 1.2e-16), 14.23356 * (1 - 1.2e-16)):
+        penalty = {10: record(16, {"t": x10}), 100: record(16, {"t": 13.88})}
+        row = budget_table([("t", "K")], BudgetRuns(levels, penalty, record(16, {"t": 14.23356}))).iloc[0]
+        assert "divergent" in row["penalty_limit_status"] and "R = e21/e32 = inf" in row["penalty_limit_status"]

@@ -29,7 +29,7 @@ from typing import Any, Mapping
 
 import pandas as pd
 
-from harness.measure.quantity_study import CONVERGED, EXTRAPOLATED, converge
+from harness.measure.quantity_study import CONVERGED, EXTRAPOLATED, ROUND_OFF, converge
 from harness.measure.tolerances import goal_estimate
 from harness.run.record import RunRecord
 
@@ -82,7 +82,7 @@ def budget_table(quantities: list[tuple[str, str]], runs: BudgetRuns) -> pd.Data
     rows = []
     for name, unit in quantities:
         value = value_of(runs.finest, name)
-        three = converge(name, unit, {k: value_of(r, name) for k, r in runs.levels.items()})
+        three = converge(name, unit, snapped({k: value_of(r, name) for k, r in runs.levels.items()}))
         richardson = 0.0 if three.status == CONVERGED else \
             relative_change(three.extrapolated, value) if three.status == EXTRAPOLATED else math.nan
         row = {"quantity": name, "unit": unit, "value": value,
@@ -102,6 +102,22 @@ def budget_table(quantities: list[tuple[str, str]], runs: BudgetRuns) -> pd.Data
     return pd.DataFrame(rows)
 
 
+def snapped(values: Mapping[int, float]) -> dict[int, float]:
+    """`values` (level -> value) with a difference within round-off of the value (ROUND_OFF) made
+    zero, coarsest first: two runs that agree to round-off agree, so a triple's classification
+    (one difference zero: divergent; or a sign change: oscillatory) does not follow the last bits
+    of a solve (the strip actuator's max theta at c_nu x1 and x10: equal, or 1.2e-16 apart)."""
+    out: dict[int, float] = {}
+    previous = None
+    for k in sorted(values):
+        v = values[k]
+        if previous is not None and math.isfinite(v) and math.isfinite(previous) \
+                and abs(v - previous) <= ROUND_OFF * max(abs(v), abs(previous)):
+            v = previous
+        out[k] = previous = v
+    return out
+
+
 def penalty_limit(name: str, unit: str, value: float, penalty: Mapping[int, RunRecord]) -> tuple[float, str]:
     """Where the quantity goes as c_nu grows without bound, from c_nu x1, x10, x100: the
     three-grid procedure with 1/c_nu as the grid size (ratio 10; the penalty's error of a
@@ -110,7 +126,7 @@ def penalty_limit(name: str, unit: str, value: float, penalty: Mapping[int, RunR
     it) is divergent, not extrapolated."""
     if set(penalty) != set(PENALTY_FACTORS):
         return math.nan, "no contact"
-    three = converge(name, unit, {1: value, **{k: value_of(r, name) for k, r in penalty.items()}})
+    three = converge(name, unit, snapped({1: value, **{k: value_of(r, name) for k, r in penalty.items()}}))
     why = three.status + (f": {three.why}" if three.why else "")
     if three.status == CONVERGED:
         return 0.0, why
