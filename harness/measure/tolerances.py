@@ -51,6 +51,8 @@ def goal_estimate(record: RunRecord, name: str) -> float | None:
     """The finest run's signed goal-oriented estimate of Q_exact - Q_h, when it wrote one."""
     estimates = getattr(record, "goal_estimates", None)
     value = estimates.get(name) if isinstance(estimates, dict) else None
+    if isinstance(value, dict):  # an entry that holds more than the estimate: its signed value
+        value = value.get("estimate")
     if isinstance(value, bool) or not isinstance(value, (int, float)) or not math.isfinite(value):
         return None
     return float(value)
