@@ -34,10 +34,12 @@ def test_every_key_output_idp_writes_is_declared():
     top |= passed
     reference, _ = written(FREEFEM / "reference_error.idp")
     estimator, _ = written(FREEFEM / "estimator.idp")
-    reference |= estimator  # both write their keys through a macro output.idp calls
+    reactions, _ = written(FREEFEM / "reactions.idp")
+    reference |= estimator | reactions  # each writes its keys through a macro output.idp calls
     assert {"n", "converged", "checks", "max_abs_u", "mms_errors"} <= top  # the parse finds them
     assert {"reference_errors", "reference_s"} <= reference
     assert {"estimator", "estimator_norms"} <= estimator
+    assert {"reactions"} <= reactions
     assert (top | reference) - KEYS == set()
     assert checks == CHECK_KEYS
     # The per-field ranges ("min_" + name) of the scalar fields the harness knows.

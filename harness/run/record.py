@@ -98,6 +98,9 @@ class RunRecord:
     probes: list[float] | None = None  # the case's [quantities] probes, in its order (freefem/quantities.idp)
     averages: list[float] | None = None  # and its averages
     checks: dict[str, Any] | None = None
+    # per boundary role the mesh has: the force its supports exert on the body, the free charge on it,
+    # the heat leaving through it, each where the role fixes that field (freefem/reactions.idp)
+    reactions: dict[str, dict[str, Any]] | None = None
     # the recovery estimate of each field's error in its norm of E^h, and the field's own norm (estimator.idp)
     estimator: dict[str, float] | None = None
     estimator_norms: dict[str, float] | None = None
