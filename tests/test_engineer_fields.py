@@ -14,7 +14,8 @@ import pytest
 
 from harness.core.layout import Layout
 from harness.scene.material_constants import material_constants
-from physics_runs import DATA, solve
+from physics_runs import CASES, DATA, solve
+from test_parallel import mpi_missing
 
 P = 100.0  # block.toml's pressure on the loaded top [N/m^2]
 # Round-off of a uniform state solved to newton.rtol = 1e-9: the stress of a P1 state read
@@ -106,3 +107,41 @@ def test_linear_potential_gives_constant_E_and_D_and_electrode_charges(tmp_path)
     assert reactions["ground"]["charge"] == pytest.approx(d_y * (w / 2 - h / 2), rel=1e-8)
     assert len(reactions["electrode"]["parts"]) == 1
     assert json.loads(json.dumps(reactions)) == reactions  # plain JSON, no NaN
+
+
+def test_linear_temperature_gives_constant_heat_flux(tmp_path):
+    """A manufactured linear theta* = a + b x + c y (thermal effects only): P1 holds it exactly, so
+    q = -K grad(theta) = (-k11 b, -k33 c) in every cell, and the stress is the thermal one alone,
+    sigma = -m theta (u* = 0) at each cell's centroid."""
+    a, b, cy = 0.5e-3, 0.3e-3, -0.2e-3
+    solve(CASES / "mms" / "bulk.toml", 4, tmp_path, 'scene.name="mms_bulk"', 'scene.effects=["thermal"]',
+          f'manufactured.theta="{a!r} + {b!r}*x + {cy!r}*y"', 'manufactured.u1="0"', 'manufactured.u2="0"')
+    c = material_constants("BaTiO3", Layout(results=tmp_path))
+    directory = tmp_path / "mms_bulk" / "n4"
+    field = cells(directory)
+    q = field["heat_flux"]
+    assert q.shape == (len(field["stress_xx"]), 3)
+    assert np.allclose(q[:, 0], -c["k11"] * b, rtol=1e-10)
+    assert np.allclose(q[:, 1], -c["k33"] * cy, rtol=1e-10)
+    assert np.all(q[:, 2] == 0)
+    mesh = meshio.read(directory / "solution.vtu")
+    centroid = mesh.points.astype(float)[mesh.cells[0].data].mean(axis=1)
+    theta = a + b * centroid[:, 0] + cy * centroid[:, 1]
+    # The file stores the points in single precision (iovtk), 6e-8 relative: theta at them to 1e-6.
+    assert np.allclose(field["stress_xx"][:, 0], -c["m11"] * theta, rtol=1e-6)
+    assert np.allclose(field["stress_yy"][:, 0], -c["m33"] * theta, rtol=1e-6)
+    assert np.allclose(field["stress_zz"][:, 0], -c["m22"] * theta, rtol=1e-6)  # plane strain holds eps_zz = 0
+
+
+@pytest.mark.skipif(bool(mpi_missing()), reason=mpi_missing() or "-")
+def test_on_petsc_ranks_the_fields_are_gathered_and_roles_reported_whole(tmp_path):
+    """Two ranks writing the outputs themselves (PETSc): the cell fields gathered onto the whole
+    mesh, the same uniform stress; a rank holds pieces of pieces, so no `parts`."""
+    run = rollers_block(tmp_path, 'scene.effects=["contact"]', "run.ranks=2", 'run.linear_solver="petsc"')
+    c = material_constants("BaTiO3", Layout(results=tmp_path))
+    field = cells(tmp_path / "block" / "n4")
+    assert np.allclose(field["stress_yy"], -P, rtol=0, atol=ROUND_OFF * P)
+    assert np.allclose(field["stress_xx"], -P * c["f13"] / c["f33"], rtol=0, atol=ROUND_OFF * P)
+    walls = run.record.reactions["roller_x"]
+    assert "parts" not in walls
+    assert walls["force"] == pytest.approx(run.record.checks["clamp_reaction"], abs=1e-12 * P)
