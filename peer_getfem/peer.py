@@ -92,14 +92,17 @@ def bodies_of(spec: dict, dimension: int) -> list[tuple[Body, dict]]:
     material, its poling) on its cells. A poling is the unit vector of the scene's
     dimension along which the material's axis 3 points (None: the file's own axes)."""
     regions = spec.get("regions") or [{"label": None, "material": spec["material"], "poling": spec.get("poling")}]
+    plane = spec.get("plane", "strain")  # a 2D scene's geometry.plane
+    if plane not in ("strain", "stress"):
+        raise InputError(f"plane {plane!r} (strain or stress)")
     out = []
     for r in regions:
         material = oriented(r["material"], r.get("poling"), dimension)
         if r["label"] is None:
-            body = Body("bulk", -1, "", reduced(material, dimension))
+            body = Body("bulk", -1, "", reduced(material, dimension, plane))
         else:
             label = int(r["label"])
-            body = Body(f"body{label}", CELL_REGION + label, f"R{label}", reduced(material, dimension))
+            body = Body(f"body{label}", CELL_REGION + label, f"R{label}", reduced(material, dimension, plane))
         out.append((body, material))
     return out
 

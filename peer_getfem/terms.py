@@ -51,11 +51,19 @@ def scales(material: dict, phi_f: float, theta_f: float, electrode_v: float = 0.
     return Scales(u, phi, theta, c0 * u, b0 * phi, k0 * theta)
 
 
-def reduced(material: dict, dimension: int) -> dict[str, np.ndarray]:
-    """C (nv x nv), e (d x nv), beta and k (d x d), m (nv), p (d) for the dimension."""
+def reduced(material: dict, dimension: int, plane: str = "strain") -> dict[str, np.ndarray]:
+    """C (nv x nv), e (d x nv), beta and k (d x d), m (nv), p (d) for the dimension. In plane
+    stress (2D) the out-of-plane normal stress sigma_22 = 0 is condensed out first: eps_22 solved
+    from it and put back into the other rows (docs/model.md section 8)."""
     c, e = np.array(material["C"], float), np.array(material["e"], float)
     beta, k = np.array(material["beta"], float), np.array(material["k"], float)
     m, p = np.array(material["m"], float), np.array(material["p"], float)
+    if dimension == 2 and plane == "stress":
+        # sigma = C eps + e^T grad(phi) - theta m, D = e eps - beta grad(phi) - theta p, with
+        # eps_22 = -(C[1] . eps + e[:, 1] . grad(phi) - m[1] theta) / C[1, 1] (row 1 of the Voigt set).
+        c22, c2, e2, m2 = c[1, 1], c[:, 1].copy(), e[:, 1].copy(), m[1]
+        c, e = c - np.outer(c2, c2) / c22, e - np.outer(e2, c2) / c22
+        beta, m, p = beta + np.outer(e2, e2) / c22, m - c2 * m2 / c22, p - e2 * m2 / c22
     if dimension == 3:
         return {"C": c, "e": e, "beta": beta, "k": k, "m": m, "p": p}
     v, a = PLANE_VOIGT, PLANE_AXES

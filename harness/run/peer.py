@@ -45,18 +45,19 @@ def finite(value: Any) -> Any:
 
 def problem(table: dict[str, dict[str, Any]], effects: tuple[str, ...], dimension: int, material: dict[str, Any],
             mesh: Path, start: str, pressed_depth: float = 2e-6, poling: tuple[float, ...] | None = None,
-            regions: tuple[PeerRegion, ...] = ()) -> dict[str, Any]:
+            regions: tuple[PeerRegion, ...] = (), plane: str = "strain") -> dict[str, Any]:
     """The peer's input: everything one solve depends on. `table`: the data FreeFEM gets
     (Scene.solver_parameters: sections of effects that are off left out); `material`: the
     material file's values in its own axes, poled along `poling` (None: its own axis 3);
     `regions`: with material regions, each one's cells, values and poling instead;
-    `pressed_depth`: how far the pressed start pushes Gamma_3 in, 2 max(eps_e, eps_c) [m]."""
+    `pressed_depth`: how far the pressed start pushes Gamma_3 in, 2 max(eps_e, eps_c) [m]; `plane`: a 2D
+    scene's geometry.plane (the peer condenses sigma_22 = 0 out of the material itself)."""
     sections = ("loads", "contact", "electric_contact", "thermal_contact", "newton")
     return {
         "mesh": str(mesh), "dimension": dimension, "labels": dict(ROLE_LABELS), "effects": list(effects),
         "material": material, "poling": None if poling is None else list(poling),
         "regions": [{"label": r.label, "material": r.material, "poling": list(r.poling)} for r in regions],
-        "start": start, "pressed_depth": pressed_depth,
+        "start": start, "pressed_depth": pressed_depth, **({"plane": plane} if plane != "strain" else {}),
         **{s: {k: finite(v) for k, v in table.get(s, {}).items()} for s in sections},
     }
 

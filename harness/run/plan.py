@@ -150,11 +150,11 @@ def invocation(scene: Scene, mesh: Path, n: int, layout: Layout, guess: str, sta
     """main.edp's text and FreeFEM's options. A start state "-" is read from stdin (a pipelined
     run). On several ranks (run.ranks > 1) the text is the distributed scheme's, unless
     `sequential`."""
-    macros = {**manufactured_macros(scene, layout), **scene.reference_macros(), **scene.poling_macros(),
+    macros = {**manufactured_macros(scene, layout), **scene.reference_macros(), **scene.poling_macros(), **scene.plane_macros(),
               **floating_macros(scene.geometry, scene.sections.scene.materials)}
     parallel = launcher.ranks_of(scene).parallel and not sequential
     solver = scene.solver
-    definitions = region_definitions(scene.regions, layout, scene.dimension) if scene.regions else []
+    definitions = region_definitions(scene.regions, layout, scene.dimension, scene.plane) if scene.regions else []
     definitions += freefem_definitions(scene)
     text = main_script(scene.material, scene.effects, layout, element=scene.element, macros=macros,
                        definitions=definitions, linear_solver=solver,

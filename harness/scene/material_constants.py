@@ -18,7 +18,7 @@ from harness.core.layout import Layout
 # How long FreeFEM may take to read a material file and print its constants (measured: well under
 # a second, FreeFEM's start-up included): a file that takes longer loops.
 READ_TIMEOUT_S = 60.0
-# The plane-strain constants material.idp derives (its section 6).
+# The 2D constants material.idp derives (its section 6; plane strain or plane stress, section 4c).
 CONSTANTS = ("f11", "f13", "f33", "f44", "e31", "e33", "e15", "b11", "b33",
              "m11", "m33", "p1", "p3", "k11", "k33")
 # The out-of-plane constants of the 3D law (freefem/constitutive.idp, material.idp).
@@ -38,20 +38,24 @@ ROTATED = (tuple(ROTATED_ELASTIC.values()) + tuple(ROTATED_PIEZO.values()) + tup
 
 
 def material_constants(material: str, layout: Layout, poling: tuple[tuple[str, str], ...] = (),
-                       dimension: int = 2) -> dict[str, float]:
-    """`poling`: the scene's poling macros (harness/scene/poling.py), empty for the default axis."""
+                       dimension: int = 2, plane: str = "strain") -> dict[str, float]:
+    """`poling`: the scene's poling macros (harness/scene/poling.py), empty for the default axis;
+    `plane`: a 2D scene's geometry.plane ("stress": the plane-stress reduction of material.idp)."""
     return dict(_constants(str(layout.material_file(material).resolve()),
-                           str(layout.material_reduction_file().resolve()), poling, dimension))
+                           str(layout.material_reduction_file().resolve()), poling, dimension, plane))
 
 
 @functools.cache
 def _constants(material_file: str, reduction_file: str, poling: tuple[tuple[str, str], ...] = (),
-               dimension: int = 2) -> tuple[tuple[str, float], ...]:
-    """Include the material as a run does, print the plane-strain constants to 17 digits (and,
-    for a rotated poling, the rotated set's other entries)."""
+               dimension: int = 2, plane: str = "strain") -> tuple[tuple[str, float], ...]:
+    """Include the material as a run does, print the constants of the 2D law (plane strain or
+    plane stress) and the 3D one to 17 digits (and, for a rotated poling, the rotated set's
+    other entries)."""
     includes = [material_file] + [reduction_file] * Path(reduction_file).is_file()
     names = CONSTANTS + CONSTANTS_3D + ROTATED * bool(poling)
-    lines = [f"macro DIMENSION {dimension} //"] * bool(poling) + [f"macro {k}() ({v}) //" for k, v in poling]
+    stress = plane == "stress"
+    lines = [f"macro DIMENSION {dimension} //"] * (bool(poling) or stress) + [f"macro {k}() ({v}) //" for k, v in poling]
+    lines += ["macro PLANESTRESS() (1) //"] * stress
     lines += [f'include "{p}"' for p in includes] + ["cout.precision(17);"]
     lines += [f'cout << "{k} " << {k} << endl;' for k in names]
     with tempfile.TemporaryDirectory(prefix="ff-material-") as tmp:

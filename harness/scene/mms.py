@@ -267,7 +267,8 @@ def scene_macros(scene, layout: Layout) -> dict[str, str]:
         if exact.williams != 0:
             raise SceneError("manufactured.williams needs one isotropic material; this scene has material regions")
         return region_macros(exact, scene, layout)
-    constants = material_constants(scene.material, layout, tuple(scene.poling_macros().items()), scene.dimension)
+    constants = material_constants(scene.material, layout, tuple(scene.poling_macros().items()), scene.dimension,
+                                   scene.plane)
     return macros(corner_derived(exact, constants, scene.effects, scene.dimension), scene.dimension)
 
 
@@ -305,7 +306,7 @@ def region_macros(exact: Exact, scene, layout: Layout) -> dict[str, str]:
     jumps as line loads on them."""
     rotated = any_rotated(scene.regions)
     derived = [derive(exact, material_constants(r.material, layout, tuple(r.poling.macros(always=rotated).items()),
-                                                scene.dimension), scene.effects, scene.dimension)
+                                                scene.dimension, scene.plane), scene.effects, scene.dimension)
                for r in scene.regions]
     out = {"MMS": "1", "MMSREGIONS": "1"}
     for name, key in macro_names(scene.dimension).items():

@@ -175,13 +175,13 @@ def any_rotated(regions: tuple[Region, ...]) -> bool:
     return any(not r.poling.is_default for r in regions)
 
 
-def region_definitions(regions: tuple[Region, ...], layout: Layout, dimension: int) -> list[str]:
+def region_definitions(regions: tuple[Region, ...], layout: Layout, dimension: int, plane: str = "strain") -> list[str]:
     """FreeFEM lines for main.edp: the switch REGIONS and, expanded by freefem/regions.idp once
     the mesh is read, each constant as a P0 field of the cells' region labels. When a region
     is rotated, every region's set carries the rotated entries (zero on the default axis)."""
     rotated = any_rotated(regions)
     names = CONSTANTS + CONSTANTS_3D + ROTATED * rotated
-    values = [material_constants(r.material, layout, tuple(r.poling.macros(always=rotated).items()), dimension)
+    values = [material_constants(r.material, layout, tuple(r.poling.macros(always=rotated).items()), dimension, plane)
               for r in regions]
     fields = []
     for name in names:

@@ -77,6 +77,15 @@ class Scene:
         return Poling(default_axis(self.dimension)).macros(always=True) if any_rotated(self.regions) else {}
 
     @property
+    def plane(self) -> str:
+        """geometry.plane of a 2D scene ("strain" or "stress"); a 3D scene's is "strain" (none applies)."""
+        return getattr(self.sections.geometry, "plane", None) or "strain"  # the default is dropped on load
+
+    def plane_macros(self) -> dict[str, str]:
+        """PLANESTRESS switches on freefem/material.idp's plane-stress reduction."""
+        return {"PLANESTRESS": "1"} if self.plane == "stress" else {}
+
+    @property
     def poling(self) -> Poling:
         """The material's axis 3 in the scene's coordinates (checked when the scene loads)."""
         return parse_poling(self.sections.scene.poling_axis, self.dimension)
@@ -304,6 +313,10 @@ def extents(geometry: Geometry | Box | GmshGeometry) -> tuple[tuple[float, ...],
 
 def parse_any_geometry(table: dict[str, dict[str, Any]], case_dir: Path) -> Geometry | Box | GmshGeometry:
     given = table["geometry"]
+    if given.get("plane") == "strain":
+        # Plane strain, the default, resolves to the table it had before the key existed: its
+        # summary.json and run cache keys stay what they were.
+        del given["plane"]
     if given.get("blocks") == {}:
         # A body without named sub-blocks resolves to the table it had before blocks existed:
         # its summary.json and run cache keys stay what they were.
@@ -313,6 +326,9 @@ def parse_any_geometry(table: dict[str, dict[str, Any]], case_dir: Path) -> Geom
     if given["kind"] == "gmsh":
         geometry = parse_gmsh(given, case_dir, table["study"]["levels"], table["scene"]["effects"])
         given["coarsest"] = geometry.coarsest  # resolved, so that the cache key names it
+        if geometry.dimension == 3 and given.get("plane", "strain") != "strain":
+            raise SceneError(f"geometry.plane = {given['plane']!r} is for 2D bodies; this drawing is 3D "
+                             "(a 3D body has no plane reduction: remove the key)")
         return geometry
     return parse_geometry(given)
 

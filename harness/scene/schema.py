@@ -90,6 +90,8 @@ def material_reference(v: str) -> str | None:
 
 _ROLE = one_of(*ROLE_LABELS)
 
+# geometry.plane: how a 2D scene reads its third direction (freefem/material.idp's reduction).
+PLANES = ("strain", "stress")
 # Effects a scene can switch on (elasticity is always on), each with its prerequisites.
 EFFECTS: dict[str, tuple[str, ...]] = {
     "piezoelectric": (),
@@ -196,6 +198,9 @@ SCHEMA: dict[str, dict[str, Key]] = {
         # [geometry.blocks]: named sub-blocks name = [x0, x1, y0, y1] that tile the body, the
         # regions [scene.materials] maps to materials (harness/scene/blocks.py).
         "blocks": Key(object, {}),
+        # A 2D body's third direction (docs/model.md section 8): strain, the long prism (eps_zz = 0,
+        # the paper's); stress, the thin plate or beam free across its width (sigma_zz = 0).
+        "plane": Key(str, "strain", one_of(*PLANES)),
     },
     "loads": {
         name: Key(float, 0.0)
@@ -338,6 +343,9 @@ GMSH_GEOMETRY: dict[str, Key] = {
     # The level whose mesh (h = 1/coarsest) split refines and remesh scales the file's sizes
     # from; 0: the smallest of study.levels.
     "coarsest": Key(int, 0, nonnegative),
+    # A 2D body's third direction (docs/model.md section 8): strain, the long prism (eps_zz = 0,
+    # the paper's); stress, the thin plate or beam free across its width (sigma_zz = 0).
+    "plane": Key(str, "strain", one_of(*PLANES)),
 }
 
 

@@ -165,7 +165,7 @@ def compare(scene: Scene, start: str, levels: tuple[int, ...], layout: Layout, f
     for n in levels:
         ours = runs[n]
         spec = problem(scene.solver_parameters(), scene.effects, scene.dimension, material, meshes[n], start,
-                       pressed_depth(scene.table), poling, regions)
+                       pressed_depth(scene.table), poling, regions, scene.plane)
         peer = run_peer(spec, layout.case_dir(scene.name) / f"getfem_n{n}", 10 * scene.timeout_s)
         fields = read_fields(ours.directory / "solution.vtu")
         diffs, _ = differences(fields, peer.record, scene.fields, ours.record.scales or {})
@@ -213,7 +213,8 @@ def timing(scene: Scene, start: str, n: int, layout: Layout, repeat: int) -> dic
 
     meshes = InlineMeshes(scene, [n], layout)
     spec = problem(scene.solver_parameters(), scene.effects, scene.dimension,
-                   material_values(layout.material_file(scene.material)), meshes[n], start, pressed_depth(scene.table))
+                   material_values(layout.material_file(scene.material)), meshes[n], start, pressed_depth(scene.table),
+                   plane=scene.plane)
     samples: dict[str, list[float]] = {}
     for _ in range(repeat):
         ours = runs_of(run_levels(scene, meshes, layout, force=True, progress=quiet, pipelined=False))[n].record
