@@ -185,3 +185,26 @@ def parse_quantities(table: dict[str, Any], fields: tuple[str, ...], dimension: 
                              f"({', '.join(sorted(roles))})")
         averages.append(Average(name, field, on))
     return tuple(probes), tuple(averages)
+
+
+# The quantities whose discretisation error a run can estimate by dual-weighted residuals
+# (freefem/goals.idp, docs/goals.md) -> the kind of goal functional goals.idp forms for it.
+GOAL_KINDS = {"heat_through_contact": "Heat", "charge_through_contact": "Charge",
+              "electrode_charge.electrode": "Electrode"}
+
+
+def parse_goals(value: Any, quantities: tuple[str, ...], why_not: str) -> tuple[str, ...]:
+    """The section's goals: each a quantity of the scene that goals.idp can estimate, once;
+    `why_not` says why this scene's run cannot estimate any (empty: it can)."""
+    if not isinstance(value, list) or not all(isinstance(g, str) for g in value):
+        raise SceneError(f"quantities.goals must be a list of quantity names, e.g. [\"heat_through_contact\"] (not {value!r})")
+    can = [g for g in GOAL_KINDS if g in quantities]
+    for goal in value:
+        if goal not in can:
+            raise SceneError(f"quantities.goals {goal!r}: not a goal this scene can estimate "
+                             f"(it can: {', '.join(can) or 'none'})")
+        if value.count(goal) > 1:
+            raise SceneError(f"quantities.goals {goal!r}: named twice")
+    if value and why_not:
+        raise SceneError(f"quantities.goals {value[0]!r}: goal estimates need {why_not}")
+    return tuple(value)
