@@ -1,8 +1,9 @@
 """The exact value of a goal on a manufactured solution (cases/mms/*.toml, harness/scene/mms.py):
 the heat and the charge through Gamma_3 of freefem/checks.idp, -int_Gamma_3 p_r(s*) phi_L(d*),
-the laws of freefem/contact.idp at the exact fields, integrated to about 1e-9 relative by a
-composite Gauss-Legendre rule of many panels (the laws' kinks, where the contact opens or a ramp
-saturates, fall inside panels; a kink costs O(panel^2) there). The goals' effectivity study
+the laws of freefem/contact.idp at the exact fields, integrated by a composite Gauss-Legendre rule
+of many panels to 1e-11 relative in 2D and 1e-7 in 3D (what doubling the panels moves the values
+of cases/mms/contact.toml and contact3d.toml by): the laws' kinks, where the contact opens or a
+ramp saturates, fall inside panels, and a kink costs O(panel^2) there. The goals' effectivity study
 (harness/study/goals.py) divides the goal estimate by Q_exact - Q_h with it.
 
 Gamma_3 is read from the geometry: the rectangle's bottom segments of role `contact` (outward

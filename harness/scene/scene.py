@@ -296,8 +296,9 @@ def goals_unsupported(table: dict[str, dict[str, Any]], geometry: Geometry | Box
         return f"one MPI rank (run.ranks = {table['run']['ranks']}): the dual solve is not distributed"
     if table["scene"]["element"] != "P1":
         return "P1 elements (the dual is solved on P2)"
-    if table["run"]["linear_solver"] == "petsc":
-        return "a linear solver of FreeFEM's own (run.linear_solver = \"petsc\" holds K in the plugin)"
+    if solver(table["run"]["linear_solver"]).builds_plugin:
+        return (f"a linear solver of FreeFEM's own (run.linear_solver = {table['run']['linear_solver']!r} "
+                "holds K in its plugin)")
     if Unknowns(tuple(table["scene"]["effects"]), dimension).staggered:
         return "theta in the Newton system (thermal_contact on): a staggered theta has no Newton tangent"
     if any(role.startswith("floating") for role in geometry.used_roles()):
