@@ -76,3 +76,26 @@ def test_a_goal_the_run_cannot_estimate_is_refused_with_one_line(tmp_path, capsy
     assert len(err) == 1 and err[0].startswith("error:")
     assert str(LINEAR) in err[0] and says in err[0]
     assert not (tmp_path / "linear_goal" / "n2").exists()
+
+
+PAPER = ROOT / "cases" / "paper.toml"
+
+
+def test_adapt_for_a_goal_refines_where_its_indicators_are_and_estimates_each_step(tmp_path):
+    assert main(["adapt", str(PAPER), "--goal", "heat_through_contact", "--steps", "3", "--results", str(tmp_path)]) == 0
+    table = (tmp_path / "adapt" / "paper_goal" / "goal_adapt.csv").read_text().splitlines()
+    rows = [dict(zip(table[0].split(","), line.split(","))) for line in table[1:]]
+    assert [int(r["step"]) for r in rows] == [1, 2, 3]
+    dofs = [int(r["dofs"]) for r in rows]
+    cells = [int(r["cells"]) for r in rows]
+    # local refinement: more cells each step, far fewer than a uniform refinement's 4 times
+    assert dofs[0] < dofs[1] < dofs[2] and cells[1] < 2 * cells[0] and cells[2] < 2 * cells[1]
+    # every step's estimate has the sign of the error: the heat grows towards its limit as the mesh refines
+    values = [float(r["value"]) for r in rows]
+    assert values[0] < values[1] < values[2] and all(float(r["estimate"]) > 0 for r in rows)
+
+
+def test_adapt_refuses_a_goal_the_scene_has_not(tmp_path, capsys):
+    code = main(["adapt", str(PAPER), "--goal", "no_such_goal", "--steps", "3", "--results", str(tmp_path)])
+    err = capsys.readouterr().err.strip().splitlines()
+    assert code == 2 and len(err) == 1 and str(PAPER) in err[0] and "'no_such_goal'" in err[0]

@@ -9,18 +9,29 @@ from __future__ import annotations
 
 import argparse
 
+import pandas as pd
+
 from harness.arguments import add_common, layout_of
-from harness.study.goals import CASES, effectivity_table, write_tables
+from harness.study.adapt import DEFAULT_BULK
+from harness.study.goals import ADAPT_CASES, CASES, effectivity_table, goal_adapt_rows, write_adapt_tables, write_tables
 
 
 def add_arguments(parser: argparse.ArgumentParser) -> None:
     parser.add_argument("--cases", default=None, metavar="LABELS",
                         help="only these cases, comma-separated by the start of their label (e.g. mms,paper)")
+    parser.add_argument("--adapt", action="store_true",
+                        help="instead: adaptive refinement marked by each goal's indicators beside uniform levels "
+                        "(adapt.csv, adapt.md)")
     add_common(parser, under="goals")
 
 
 def run(args: argparse.Namespace) -> int:
     layout = layout_of(args)
+    if args.adapt:
+        table = pd.concat([goal_adapt_rows(case, layout, DEFAULT_BULK) for case in ADAPT_CASES], ignore_index=True)
+        write_adapt_tables(table, layout.results)
+        print((layout.results / "adapt.md").read_text(), end="")
+        return 0
     chosen = CASES if not args.cases else tuple(
         c for c in CASES if any(c.label.startswith(s.strip()) for s in args.cases.split(",")))
     table = effectivity_table(chosen, layout)
