@@ -3,7 +3,9 @@ harness/study/goals.py CASES solved on its levels with its goals, each level's d
 estimate of Q_exact - Q_h (freefem/goals.idp) divided by the true error: against the exact value
 on the manufactured solutions in 2D and 3D, against Richardson's value from the three finest
 levels on the paper's scene (both branches) and the strip actuator. Writes effectivity.csv and
-effectivity.md into results/goals/ (the levels' runs beside them)."""
+effectivity.md into results/goals/ (the levels' runs beside them). With --adapt: the adaptive loop
+marked by a goal's indicators beside uniform levels (harness/study/goals.py ADAPT_CASES), into
+adapt.csv and adapt.md."""
 
 from __future__ import annotations
 

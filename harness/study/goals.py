@@ -2,7 +2,9 @@
 `CASES` solved on its levels with its goals (freefem/goals.idp), and each level's goal estimate
 divided by the true error Q_ref - Q_h, Q_ref the exact value of a manufactured solution
 (harness/measure/goal_exact.py) or Richardson's value from the three finest levels
-(harness/measure/gci.py; none when they are not monotone). docs/goals.md reads the table."""
+(harness/measure/gci.py; none when they are not monotone); and the adaptive loop marked by a
+goal's dual-weighted indicators (`adapt --goal`), beside uniform levels (`goals --adapt`).
+docs/goals.md reads both tables."""
 
 from __future__ import annotations
 
