@@ -11,6 +11,7 @@ from pathlib import Path
 
 import meshio
 import numpy as np
+import pandas as pd
 import pytest
 
 from harness.cli import main
@@ -106,3 +107,14 @@ def test_adapt_refuses_a_goal_the_scene_has_not(tmp_path, capsys):
     code = main(["adapt", str(PAPER), "--goal", "no_such_goal", "--steps", "3", "--results", str(tmp_path)])
     err = capsys.readouterr().err.strip().splitlines()
     assert code == 2 and len(err) == 1 and str(PAPER) in err[0] and "'no_such_goal'" in err[0]
+
+
+def test_a_convergence_study_with_a_goal_tabulates_each_levels_estimate(tmp_path):
+    assert main(["convergence", str(MMS), "--levels", "4,8,16", "--goal", "heat_through_contact",
+                 "--results", str(tmp_path)]) == 0
+    table = pd.read_csv(tmp_path / "mms_contact" / "quantities.csv")
+    for n in (4, 8, 16):
+        data = run_json(tmp_path, "mms_contact", n)
+        row = table[table["n"] == n].iloc[0]
+        assert row["goal_estimate.heat_through_contact"] == pytest.approx(data["goal_estimates"]["heat_through_contact"],
+                                                                          rel=1e-12)
