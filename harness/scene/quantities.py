@@ -9,7 +9,13 @@ averages (a field's mean over a boundary part), checked when the scene loads. A 
 the body is refused before anything runs: against the rectangle's or the box's extent, which
 is the body; a gmsh body against its bounding box here, then against its meshes
 (harness/run/quantities.py: the study's coarsest level before anything runs, each level before
-it runs)."""
+it runs).
+
+The same section names the goals (`goals = [...]`, `GOAL_KINDS`): the quantities whose
+discretisation error a run estimates by dual-weighted residuals (freefem/goals.idp,
+docs/goals.md), each checked to be one of the scene's that the estimate supports, on a run it
+supports (one rank, P1, FreeFEM's own linear solver, theta in the Newton system, no floating
+electrode)."""
 
 from __future__ import annotations
 
