@@ -3,6 +3,7 @@
 from __future__ import annotations
 
 import argparse
+import json
 import os
 from pathlib import Path
 from typing import Any, Callable, NoReturn
@@ -122,6 +123,18 @@ def checked_by(parse: Callable[[str], Any]) -> Callable[[str], Any]:
 
 def layout_of(args: argparse.Namespace) -> Layout:
     return Layout(results=args.results, freefem=args.freefem)
+
+
+def add_goals(parser: argparse.ArgumentParser) -> None:
+    parser.add_argument("--goal", dest="goals", action="append", default=[], metavar="NAME",
+                        help="estimate this quantity's discretisation error by dual-weighted residuals (repeatable; "
+                        "in place of the case's quantities.goals), e.g. --goal heat_through_contact (docs/goals.md)")
+
+
+def goal_overrides(args: argparse.Namespace) -> list[str]:
+    """--goal NAME ... as the one --set that names the case's goals (none given: the case's own)."""
+    goals = getattr(args, "goals", [])
+    return [f"quantities.goals={json.dumps(goals)}"] if goals else []
 
 
 def add_effects(parser: argparse.ArgumentParser) -> None:

@@ -21,7 +21,7 @@ from harness.core.faults import guarded, report
 # task each serves (the top-level help lists them so).
 TASKS: dict[str, tuple[str, ...]] = {
     "your own part (a case file of yours)": ("solve", "convergence", "adapt", "plot"),
-    "checking the scheme": ("verify", "scenes", "stress", "stability", "branches", "crosscheck"),
+    "checking the scheme": ("verify", "goals", "scenes", "stress", "stability", "branches", "crosscheck"),
     "what it costs and how far it scales": ("cost", "budget", "bench", "solvers", "profile", "scale"),
 }
 STUDIES: dict[str, str] = {
@@ -32,6 +32,7 @@ STUDIES: dict[str, str] = {
     "stability": "branch stability: every hard case and scene again with its loads and mesh perturbed by round-off",
     "branches": "the solution branches of the paper's scene from four starts",
     "verify": "true errors against exact (manufactured) solutions, and the Grid Convergence Index",
+    "goals": "goal estimates by dual-weighted residuals: their effectivity against exact and Richardson values",
     "adapt": "adaptive refinement from the error estimate (2D and 3D): error against unknowns, beside uniform",
     "plot": "a picture of one run's fields, 2D or 3D: a device on its deformed mesh, or a 3D section",
     "cost": "what accuracy costs: the cost-accuracy frontier of a scene",

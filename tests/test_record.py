@@ -36,6 +36,9 @@ def test_every_key_output_idp_writes_is_declared():
     estimator, _ = written(FREEFEM / "estimator.idp")
     reactions, _ = written(FREEFEM / "reactions.idp")
     reference |= estimator | reactions  # each writes its keys through a macro output.idp calls
+    goals, _ = written(FREEFEM / "goals.idp")  # the goal estimates, through goalJson, which output.idp calls
+    assert {"goal_estimates", "goal_dofs", "goal_s"} <= goals
+    reference |= goals
     assert {"n", "converged", "checks", "max_abs_u", "mms_errors"} <= top  # the parse finds them
     assert {"reference_errors", "reference_s"} <= reference
     assert {"estimator", "estimator_norms"} <= estimator

@@ -64,13 +64,17 @@ class QuantityConvergence:
 
 
 def quantity_values(scene: Scene, records: Mapping[int, RunRecord]) -> pd.DataFrame:
-    """quantities.csv: a row per level (n, h = 1/n, dofs, wall_s), a column per quantity.
-    A run.json written before its quantities existed has them read from its keys the same way."""
+    """quantities.csv: a row per level (n, h = 1/n, dofs, wall_s), a column per quantity, and
+    with goals (docs/goals.md) a column `goal_estimate.<name>` per goal, its dual-weighted
+    estimate of Q_exact - Q_n. A run.json written before its quantities existed has them read
+    from its keys the same way."""
     rows = []
     for n, record in sorted(records.items()):
         values = record.quantities if record.quantities is not None else quantities_of(scene, record.to_json())
+        estimates = record.goal_estimates or {}
         rows.append({"n": n, "h": 1.0 / n, "dofs": record.dofs, "wall_s": record.wall_s,
-                     **{q.name: values.get(q.name, math.nan) for q in scene.quantities}})
+                     **{q.name: values.get(q.name, math.nan) for q in scene.quantities},
+                     **{f"goal_estimate.{g}": estimates.get(g, math.nan) for g in scene.goals}})
     return pd.DataFrame(rows)
 
 

@@ -21,6 +21,7 @@ from harness.mesh.mesh import coarser_meshes, family_levels
 from harness.mesh.msh import marked_coarser, small_cells_marker
 from harness.run import launcher, petsc_plugin
 from harness.run.cache import run_inputs, sha256_file
+from harness.run.goals import goal_definitions
 from harness.run.quantities import freefem_definitions
 from harness.run.script import main_script
 from harness.scene.floating import floating_macros
@@ -156,6 +157,7 @@ def invocation(scene: Scene, mesh: Path, n: int, layout: Layout, guess: str, sta
     solver = scene.solver
     definitions = region_definitions(scene.regions, layout, scene.dimension, scene.plane) if scene.regions else []
     definitions += freefem_definitions(scene)
+    definitions += goal_definitions(scene)
     text = main_script(scene.material, scene.effects, layout, element=scene.element, macros=macros,
                        definitions=definitions, linear_solver=solver,
                        plugin=petsc_plugin.path() if solver.builds_plugin else None,

@@ -105,6 +105,11 @@ class RunRecord:
     estimator: dict[str, float] | None = None
     estimator_norms: dict[str, float] | None = None
     estimate_s: float | None = None
+    # each goal's dual-weighted residual estimate of Q_exact - Q_h, the P2 Newton unknowns of its
+    # dual and the time of the goals (freefem/goals.idp; only with [quantities] goals)
+    goal_estimates: dict[str, float] | None = None
+    goal_dofs: int | None = None
+    goal_s: float | None = None
     freefem_version: str | None = None
     # -- the range of each scalar field the scene has ("min_" + name, "max_" + name)
     min_phi: float | None = None

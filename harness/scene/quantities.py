@@ -9,7 +9,13 @@ averages (a field's mean over a boundary part), checked when the scene loads. A 
 the body is refused before anything runs: against the rectangle's or the box's extent, which
 is the body; a gmsh body against its bounding box here, then against its meshes
 (harness/run/quantities.py: the study's coarsest level before anything runs, each level before
-it runs)."""
+it runs).
+
+The same section names the goals (`goals = [...]`, `GOAL_KINDS`): the quantities whose
+discretisation error a run estimates by dual-weighted residuals (freefem/goals.idp,
+docs/goals.md), each checked to be one of the scene's that the estimate supports, on a run it
+supports (one rank, P1, FreeFEM's own linear solver, theta in the Newton system, no floating
+electrode)."""
 
 from __future__ import annotations
 
@@ -205,3 +211,26 @@ def parse_tolerances(value: Any, quantities: tuple[Quantity, ...]) -> dict[str, 
                              f"(0.01 for 1 %)")
         out[name] = float(tolerance)
     return out
+
+
+# The quantities whose discretisation error a run can estimate by dual-weighted residuals
+# (freefem/goals.idp, docs/goals.md) -> the kind of goal functional goals.idp forms for it.
+GOAL_KINDS = {"heat_through_contact": "Heat", "charge_through_contact": "Charge",
+              "electrode_charge.electrode": "Electrode"}
+
+
+def parse_goals(value: Any, quantities: tuple[str, ...], why_not: str) -> tuple[str, ...]:
+    """The section's goals: each a quantity of the scene that goals.idp can estimate, once;
+    `why_not` says why this scene's run cannot estimate any (empty: it can)."""
+    if not isinstance(value, list) or not all(isinstance(g, str) for g in value):
+        raise SceneError(f"quantities.goals must be a list of quantity names, e.g. [\"heat_through_contact\"] (not {value!r})")
+    can = [g for g in GOAL_KINDS if g in quantities]
+    for goal in value:
+        if goal not in can:
+            raise SceneError(f"quantities.goals {goal!r}: not a goal this scene can estimate "
+                             f"(it can: {', '.join(can) or 'none'})")
+        if value.count(goal) > 1:
+            raise SceneError(f"quantities.goals {goal!r}: named twice")
+    if value and why_not:
+        raise SceneError(f"quantities.goals {value[0]!r}: goal estimates need {why_not}")
+    return tuple(value)

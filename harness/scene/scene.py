@@ -19,7 +19,7 @@ from harness.scene.linear_solvers import LinearSolver, Memory, solver
 from harness.scene.petsc_options import RANKS_ONLY, default_options, one_rank_options
 from harness.scene.box import Box, parse_box
 from harness.scene.gmsh_geometry import GmshGeometry, parse_gmsh
-from harness.scene.quantities import Average, Probe, Quantity, parse_quantities, parse_tolerances, quantity_table
+from harness.scene.quantities import Average, Probe, Quantity, parse_goals, parse_quantities, parse_tolerances, quantity_table
 from harness.scene.poling import Poling, default_axis, parse_poling
 from harness.scene.regions import (Region, any_rotated, check_conductors, check_regions, regions_of,
                                    with_paths_resolved)
@@ -240,6 +240,12 @@ class Scene:
         return {name: float(v) for name, v in (self.sections.quantities.tolerances or {}).items()}
 
     @property
+    def goals(self) -> tuple[str, ...]:
+        """The quantities whose error a run estimates by dual-weighted residuals (checked when the
+        scene loaded; freefem/goals.idp)."""
+        return tuple(self.sections.quantities.goals)
+
+    @property
     def quantities(self) -> tuple[Quantity, ...]:
         """Every quantity of the scene's effects, roles and [quantities] (harness/scene/quantities.py)."""
         return quantity_table(self.effects, self.geometry.used_roles(), self.probes, self.averages)
@@ -288,6 +294,8 @@ def load_scene(path: Path, overrides: Iterable[str] = ()) -> Scene:
                                             dimension, geometry.used_roles(), extents(geometry))
         parse_tolerances(table["quantities"]["tolerances"],
                          quantity_table(effects, geometry.used_roles(), probes, averages))
+        parse_goals(table["quantities"]["goals"], tuple(q.name for q in quantity_table(
+            effects, geometry.used_roles(), probes, averages)), goals_unsupported(table, geometry))
     except SceneError as exc:
         raise SceneError(f"{path}: {exc}") from None  # every case-file error names the file
     sections = sections_of(table)
@@ -298,6 +306,23 @@ def load_scene(path: Path, overrides: Iterable[str] = ()) -> Scene:
     table = {name: values for name, values in table.items()
              if name != "expect" and not (name == "quantities" and not any(values.values()))}
     return Scene(source=path, table=table, geometry=geometry, warnings=warnings, sections=sections)
+
+
+def goals_unsupported(table: dict[str, dict[str, Any]], geometry: Geometry | Box | GmshGeometry) -> str:
+    """What a run of this scene lacks for goal estimates (freefem/goals.idp); empty when nothing."""
+    dimension = getattr(geometry, "dimension", 2)
+    if table["run"]["ranks"] > 1:
+        return f"one MPI rank (run.ranks = {table['run']['ranks']}): the dual solve is not distributed"
+    if table["scene"]["element"] != "P1":
+        return "P1 elements (the dual is solved on P2)"
+    if solver(table["run"]["linear_solver"]).builds_plugin:
+        return (f"a linear solver of FreeFEM's own (run.linear_solver = {table['run']['linear_solver']!r} "
+                "holds K in its plugin)")
+    if Unknowns(tuple(table["scene"]["effects"]), dimension).staggered:
+        return "theta in the Newton system (thermal_contact on): a staggered theta has no Newton tangent"
+    if any(role.startswith("floating") for role in geometry.used_roles()):
+        return "no floating electrode"
+    return ""
 
 
 def extents(geometry: Geometry | Box | GmshGeometry) -> tuple[tuple[float, ...], tuple[float, ...]]:

@@ -314,8 +314,11 @@ SCHEMA["reference"] = {
 # A case's own quantities (harness/scene/quantities.py, docs/quantities.md), beside the built-in
 # ones every run reports: probes = [{ name, field, at = [x, y(, z)] }] and
 # averages = [{ name, field, on = "<role>" }], checked there; tolerances = { <quantity> = <relative
-# error> }, the accuracy a convergence study's verdict asks of its finest level (docs/quantities.md).
-SCHEMA["quantities"] = {"probes": Key(object, []), "averages": Key(object, []), "tolerances": Key(object, {})}
+# error> }, the accuracy a convergence study's verdict asks of its finest level (docs/quantities.md);
+# goals = ["heat_through_contact", ...]: the quantities whose error a run estimates by dual-weighted
+# residuals (freefem/goals.idp, docs/goals.md).
+SCHEMA["quantities"] = {"probes": Key(object, []), "averages": Key(object, []), "tolerances": Key(object, {}),
+                        "goals": Key(object, [])}
 
 # The [geometry] of kind = "box" (harness/scene/box.py): side lengths and each face's role or
 # patches; the face values are checked there.

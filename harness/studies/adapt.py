@@ -78,6 +78,9 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
                              f"squared estimate (0 < bulk <= 1; 1 refines everything; default {DEFAULT_BULK})")
     parser.add_argument("--max-dofs", type=positive_int, default=None,
                         help="stop after the first step with at least this many unknowns")
+    parser.add_argument("--goal", default=None, metavar="NAME",
+                        help="mark by this quantity's dual-weighted indicators instead (docs/goals.md), e.g. "
+                             "heat_through_contact: each step's value and estimate into goal_adapt.csv")
     add_common(parser)
 
 
@@ -98,7 +101,25 @@ def rate_in_dofs(dofs: pd.Series, errors: pd.Series, dimension: int) -> float:
     return fit.slope / dimension
 
 
+def run_for_goal(args: argparse.Namespace) -> int:
+    """The loop marked by a goal's indicators (harness/study/goals.py adapt_for_goal), into
+    results/adapt/<case>_goal/goal_adapt.csv."""
+    from harness.study.goals import adapt_for_goal
+
+    named = scene_of(args.case, [*args.overrides, f"quantities.goals=[{args.goal!r}]".replace("'", '"')])
+    scene = scene_of(args.case, [*args.overrides, f"quantities.goals=[{args.goal!r}]".replace("'", '"'),
+                                 f'scene.name="{named.name}_goal"'])
+    layout = Layout(results=args.results / "adapt", freefem=args.freefem)
+    table = adapt_for_goal(scene, args.goal, layout, args.steps, args.bulk, args.max_dofs,
+                           lambda line: print(line, file=sys.stderr))
+    out = write_csv(table, layout.case_dir(scene.name) / "goal_adapt.csv", PRECISE_CSV_FORMAT)
+    print(f"{scene.name}: {len(table)} steps marked by {args.goal}'s indicators; {out}")
+    return 0
+
+
 def run(args: argparse.Namespace) -> int:
+    if args.goal:
+        return run_for_goal(args)
     scene = scene_of(args.case, args.overrides)
     check_adaptable(scene)
     # The steps and the reference coarsen through adapted meshes (adaptive_overrides); the

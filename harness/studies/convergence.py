@@ -5,7 +5,7 @@ from __future__ import annotations
 
 import argparse
 
-from harness.arguments import add_case, add_common, add_effects, add_jobs, add_levels, layout_of
+from harness.arguments import add_case, add_common, add_effects, add_goals, add_jobs, add_levels, goal_overrides, layout_of
 from harness.core.guards import Slope
 from harness.core.layout import Layout
 from harness.study.pipeline import Guarded, Plan, run_pipeline, scene_of
@@ -21,11 +21,12 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
     add_levels(parser)
     add_jobs(parser)
     add_effects(parser)
+    add_goals(parser)
     add_common(parser)
 
 
 def run(args: argparse.Namespace) -> int:
-    scene = scene_of(args.case, args.overrides, args.effects)
+    scene = scene_of(args.case, args.overrides + goal_overrides(args), args.effects)
     convergence(scene, args.levels or scene.levels, layout_of(args), args.jobs, args.force, args.ignore_memory)
     return 0
 

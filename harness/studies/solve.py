@@ -8,7 +8,7 @@ import sys
 from pathlib import Path
 from typing import Any
 
-from harness.arguments import add_case, add_common, add_effects, layout_of, positive_int
+from harness.arguments import add_case, add_common, add_effects, add_goals, goal_overrides, layout_of, positive_int
 from harness.scene.cell_size import thin_warnings
 from harness.study.engine import InlineMeshes, quiet, run_levels, runs_of
 from harness.measure.fields import Fields, read_fields
@@ -26,11 +26,12 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
                         help="the level to solve: cells of about 1/n in the model's units (the coarser levels of the "
                         "case run first when it starts from them)")
     add_effects(parser)
+    add_goals(parser)
     add_common(parser)
 
 
 def run(args: argparse.Namespace) -> int:
-    scene = scene_of(args.case, args.overrides, args.effects)
+    scene = scene_of(args.case, args.overrides + goal_overrides(args), args.effects)
     solve(scene, args.n, layout_of(args), args.force, args.ignore_memory)
     return 0
 
@@ -85,6 +86,10 @@ def describe_run(case: str, record: RunRecord, directory: Path, reused: bool, sc
         f"  contact force {fmt(r.contact_force)}, closed part of Gamma_3 {fmt(r.active_measure)}",
         *floating,
         *([f"  {', '.join(rest)}"] if rest else []),
+        # each goal's dual-weighted estimate of Q_exact - Q_h (freefem/goals.idp, docs/goals.md)
+        *([f"  goal estimates (Q_exact - Q_h, {r.goal_dofs} P2 unknowns, {fmt(r.goal_s)} s): "
+           + ", ".join(f"{name} {fmt(value)} {units.get(name, '')}".rstrip() for name, value in r.goal_estimates.items())]
+          if r.goal_estimates else []),
         f"  results in {directory}",
     ])
 

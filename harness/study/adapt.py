@@ -194,14 +194,15 @@ class MemoryGuard:
                 f"({OVERRIDE_FLAG} runs it anyway)")
 
 
-def indicator_on(mesh: SimplexMesh, solution: Path) -> np.ndarray:
-    """The run's `error_indicator`, one value per cell of `mesh` in its order (matched by
-    the cell's nodes: FreeFEM numbers the nodes as the file does)."""
+def indicator_on(mesh: SimplexMesh, solution: Path, name: str = "error_indicator") -> np.ndarray:
+    """The run's cell field `name` (the recovery estimate's `error_indicator`, or a goal's
+    `goal_indicator_<goal>`, freefem/goals.idp), one value per cell of `mesh` in its order
+    (matched by the cell's nodes: FreeFEM numbers the nodes as the file does)."""
     import meshio
 
     cell_type = CELL_TYPES[mesh.cells.shape[1] - 1][0]
     vtu = meshio.read(solution)
-    blocks = [(b.data, d) for b, d in zip(vtu.cells, vtu.cell_data["error_indicator"]) if b.type == cell_type]
+    blocks = [(b.data, d) for b, d in zip(vtu.cells, vtu.cell_data[name]) if b.type == cell_type]
     cells = np.vstack([c for c, _ in blocks])
     values = np.concatenate([np.ravel(d) for _, d in blocks])
     if len(vtu.points) != len(mesh.points) or len(cells) != len(mesh.cells):
