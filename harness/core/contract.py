@@ -130,6 +130,7 @@ def contract_idp() -> str:
 
 
 def contract_path() -> Path:
+    # (layout.FREEFEM's folder, named here again: layout imports errors, which imports this module)
     return Path(__file__).resolve().parents[2] / "freefem" / "contract.idp"
 
 

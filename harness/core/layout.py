@@ -8,6 +8,8 @@ from pathlib import Path
 from harness.core.errors import SceneError
 
 REPO = Path(__file__).resolve().parents[2]
+# The solver's FreeFEM sources, the C++ plugin and the material library: the one place their folder is named.
+FREEFEM = REPO / "freefem"
 
 
 def is_material_path(material: str) -> bool:
@@ -43,7 +45,7 @@ class Layout:
     level of any study takes."""
 
     results: Path = field(default_factory=results_root)
-    freefem: Path = REPO / "freefem"
+    freefem: Path = FREEFEM
     placed: tuple[tuple[str, Path], ...] = ()
     stepped: tuple[str, ...] = ()
 

@@ -22,6 +22,8 @@ import sys
 from dataclasses import dataclass
 from pathlib import Path
 
+from harness.core.layout import FREEFEM
+
 from harness.scene.unknowns import FIELDS
 
 # The fields a norm is taken of, in the order docs/model.md sums them (u, phi, theta).
@@ -126,7 +128,7 @@ def norm_table_idp() -> str:
 
 
 def norm_table_path() -> Path:
-    return Path(__file__).resolve().parents[2] / "freefem" / "norm_table.idp"
+    return FREEFEM / "norm_table.idp"
 
 
 if __name__ == "__main__":

@@ -18,10 +18,12 @@ import sys
 import tempfile
 from pathlib import Path
 
+from harness.core import layout
+
 from harness.core.errors import HarnessError
 from harness.core.freefem import BINARY, environment
 
-FREEFEM = Path(__file__).resolve().parents[2] / "freefem"
+FREEFEM = layout.FREEFEM
 HEADER = FREEFEM / "contact_forms.hpp"
 # The scene's constants the forms read, in the order of the kernel's law vector.
 LAW = ("cnu", "U", "gap", "Su", "Sphi", "Stheta", "Phi", "Theta", "phif", "thetaf", "ke", "epse", "kc", "epsc",

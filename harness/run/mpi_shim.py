@@ -11,9 +11,9 @@ import os
 from pathlib import Path
 
 from harness.core import native
-from harness.core.layout import REPO
+from harness.core.layout import FREEFEM, REPO
 
-SOURCE = REPO / "freefem" / "mpi_init_once.c"
+SOURCE = FREEFEM / "mpi_init_once.c"
 BUILD = REPO / "build"
 
 

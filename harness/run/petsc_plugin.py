@@ -13,12 +13,12 @@ import os
 from pathlib import Path
 
 from harness.core import native
-from harness.core.layout import REPO
+from harness.core.layout import FREEFEM, REPO
 
-SOURCE = REPO / "freefem" / "petsc_solver.cpp"
+SOURCE = FREEFEM / "petsc_solver.cpp"
 # The contact kernel's integrands, generated from freefem/contact_forms.idp (harness/run/contact_forms.py).
 # The smoother's lean ILU(0), a PETSc preconditioner of the project's (freefem/lean_ilu.hpp).
-HEADERS = (REPO / "freefem" / "contact_forms.hpp", REPO / "freefem" / "lean_ilu.hpp")
+HEADERS = (FREEFEM / "contact_forms.hpp", FREEFEM / "lean_ilu.hpp")
 BUILD = REPO / "build"
 FREEFEM_INCLUDE = Path("/usr/include/freefem++")
 # Debian's alternative for the real-scalar PETSc (libpetsc-real3.18-dev).

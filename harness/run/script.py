@@ -11,7 +11,7 @@ from pathlib import Path
 from typing import Mapping, Sequence
 
 from harness.core.contract import contract_path
-from harness.core.layout import Layout
+from harness.core.layout import FREEFEM, Layout
 from harness.scene.linear_solvers import SOLVERS, LinearSolver
 from harness.scene.schema import EFFECTS
 from harness.scene.unknowns import Unknowns
@@ -81,7 +81,7 @@ def hand_script() -> str:
 
 
 def hand_script_path() -> Path:
-    return Path(__file__).resolve().parents[2] / "freefem" / "solve.edp"
+    return FREEFEM / "solve.edp"
 
 
 if __name__ == "__main__":
